@@ -1,0 +1,10 @@
+"""`herd-ros ingest` (not implemented yet)."""
+HELP = 'not implemented yet'
+
+
+def add_arguments(parser):
+    pass
+
+
+def run(args):
+    raise SystemExit('herd-ros: this verb is not implemented yet')

@@ -1,0 +1,67 @@
+"""`herd-ros`: the offline front door (DESIGN.md, "Command line").
+
+Every verb lives in its own module ``herd_ros.cli.<verb>`` exposing
+
+* ``HELP``: one line for ``herd-ros --help``;
+* ``add_arguments(parser)``: its options;
+* ``run(args) -> int``: the work; returns the exit status.
+
+Bad input raises :class:`herd_ros.errors.HerdInputError`; it is printed as one line
+``herd-ros <verb>: error: ...`` with exit status 2, never as a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from herd_ros.errors import HerdInputError
+
+# verb name -> module name under herd_ros.cli
+VERBS = {
+    'fit': 'fit',
+    'simulate': 'simulate',
+    'report': 'report',
+    'synth': 'synth',
+    'ingest': 'ingest',
+    'import': 'import_data',
+    'bag-info': 'bag_info',
+    'imitate': 'imitate',
+    'imitate-sim': 'imitate_sim',
+    'flock': 'flock',
+    'demo': 'demo',
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='herd-ros',
+        description='Learn how a herd moves from GPS data and drive robot fleets with it.',
+    )
+    sub = parser.add_subparsers(dest='verb', metavar='VERB')
+    sub.required = True
+    for verb, module_name in VERBS.items():
+        module = importlib.import_module(f'herd_ros.cli.{module_name}')
+        p = sub.add_parser(verb, help=module.HELP, description=module.HELP,
+                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        status = args._run(args)
+    except HerdInputError as exc:
+        print(f'herd-ros {args.verb}: error: {exc}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'herd-ros {args.verb}: interrupted', file=sys.stderr)
+        return 130
+    return int(status or 0)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,5 @@
+"""`fleet_sim` node (not implemented yet)."""
+
+
+def main(args=None):
+    raise SystemExit('fleet_sim: not implemented yet')

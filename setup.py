@@ -1,0 +1,33 @@
+"""ament_python build of herd_ros: `colcon build` on a ROS 2 Jazzy install, `pip install .` on the pip path."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'herd_ros'
+
+NODES = ['gps_ingest', 'estimator', 'controller', 'fleet_sim', 'replay', 'record']
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', sorted(glob('config/*.yaml'))),
+        ('share/' + package_name + '/launch', sorted(glob('launch/*.launch.py'))),
+        ('share/' + package_name + '/bags', sorted(glob('bags/*.mcap')) + sorted(glob('bags/*.md'))),
+    ],
+    install_requires=['setuptools', 'numpy', 'scipy', 'filterpy', 'rosbags', 'PyYAML',
+                      'matplotlib', 'tqdm'],
+    zip_safe=True,
+    maintainer='herd_ros maintainers',
+    maintainer_email='maintainers@herd-ros.invalid',
+    description='Learn herd dynamics from GPS collars and drive robot fleets with them.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [f'{n} = herd_ros.nodes.{n}:main' for n in NODES]
+        + ['herd-ros = herd_ros.cli.main:main'],
+    },
+)

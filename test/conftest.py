@@ -1,0 +1,51 @@
+"""Shared fixtures. DDS stays on this machine: loopback-only discovery, per-run domain id.
+
+Set at import time, before any test module can import rclpy, so in-process nodes inherit
+it; subprocess tests take ``ros_env`` (a fresh domain id each test, so leftovers of one
+test never talk to the next).
+"""
+import itertools
+import os
+import random
+import sys
+from pathlib import Path
+
+import pytest
+
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ['ROS_STATIC_PEERS'] = ''
+os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
+os.environ.setdefault('MPLBACKEND', 'Agg')
+
+REPO = Path(__file__).resolve().parents[1]
+VENV_BIN = Path(sys.executable).parent
+_prefix = str(Path(sys.prefix))
+if _prefix not in os.environ.get('AMENT_PREFIX_PATH', '').split(':'):
+    os.environ['AMENT_PREFIX_PATH'] = ':'.join(
+        p for p in [_prefix, os.environ.get('AMENT_PREFIX_PATH', '')] if p)
+
+# Domain ids for subprocess graphs: distinct from the run's own id, cycling in 1..100.
+_base = int(os.environ['ROS_DOMAIN_ID'])
+_domains = (1 + (_base + k) % 100 for k in itertools.count(1))
+
+
+@pytest.fixture
+def ros_env():
+    """Environment for subprocesses that start rclpy: loopback only, a domain of their own."""
+    env = dict(os.environ)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['ROS_STATIC_PEERS'] = ''
+    env['ROS_DOMAIN_ID'] = str(next(_domains))
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
+
+
+@pytest.fixture
+def console_script():
+    """Path of an installed console script of this venv (`make test` installs the package)."""
+    def find(name):
+        path = VENV_BIN / name
+        if not path.exists():
+            pytest.fail(f'{name} is not installed in {VENV_BIN}: run `make setup`')
+        return str(path)
+    return find
