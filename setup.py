@@ -18,7 +18,7 @@ setup(
         ('share/' + package_name + '/launch', sorted(glob('launch/*.launch.py'))),
         ('share/' + package_name + '/bags', sorted(glob('bags/*.mcap')) + sorted(glob('bags/*.md'))),
     ],
-    install_requires=['setuptools', 'numpy', 'scipy', 'filterpy', 'rosbags', 'PyYAML',
+    install_requires=['setuptools', 'numpy', 'scipy', 'pandas', 'filterpy', 'rosbags', 'PyYAML',
                       'matplotlib', 'tqdm'],
     zip_safe=True,
     maintainer='herd_ros maintainers',
