@@ -1,0 +1,1 @@
+"""Identification: batch least squares, recursive least squares, residual whiteness."""

@@ -1,0 +1,1 @@
+"""The ingest path: WGS84 geodesy -> per-collar Kalman filtering with gating -> one herd clock."""

@@ -1,0 +1,1 @@
+"""Figures and summary files of the reports."""

@@ -1,0 +1,1 @@
+"""Forward simulation of learned laws, k-step prediction, herd statistics."""
