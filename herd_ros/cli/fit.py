@@ -1,10 +1,93 @@
-"""`herd-ros fit` (not implemented yet)."""
-HELP = 'not implemented yet'
+"""`herd-ros fit`: batch least squares of the herd model (Schwager et al. 2007) on a data file."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from herd_ros.cli.common import parse_floats, parse_grid, progress
+from herd_ros.data_sources import load_runs
+from herd_ros.estimation.herd_fit import DEFAULT_GRID, fit_herd, split_runs
+from herd_ros.estimation.validation import validate
+from herd_ros.model.model_file import save_model
+from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS
+
+HELP = 'fit the herd model to a trajectory CSV, GPS CSV or bag; write the model file'
 
 
-def add_arguments(parser):
-    pass
+def add_arguments(p):
+    p.add_argument('data', help='trajectory CSV (time,agent,x,y[,run]), GPS CSV, GPX or bag')
+    p.add_argument('-o', '--output', required=True, help='model file to write (ROS params YAML)')
+    p.add_argument('--grid', default='%dx%d' % DEFAULT_GRID, help='RBF grid NXxNY')
+    p.add_argument('--bounds', help='grid bounds XMIN,XMAX,YMIN,YMAX in metres '
+                                    '(default: the visited region)')
+    p.add_argument('--min-visits', type=int, default=DEFAULT_MIN_VISITS,
+                   help='samples of an agent a grid cell needs to keep its centre')
+    p.add_argument('--ridge', type=float, default=0.0,
+                   help='ridge λ on column-scaled parameters (0 = plain least squares)')
+    p.add_argument('--train-fraction', type=float, default=0.8,
+                   help='first fraction of every run used for fitting; the rest is held out')
+    p.add_argument('--se', choices=('sandwich', 'ols'), default='sandwich',
+                   help='standard errors: cluster-robust sandwich or textbook OLS')
+    p.add_argument('--dt', type=float, help='herd clock step (s) for GPS data')
+    p.add_argument('--smoother', choices=('none', 'rts', 'fir'), default='none',
+                   help='offline smoothing of GPS data')
+    p.add_argument('--report', metavar='DIR', help='write figures and summary.json here')
+    p.add_argument('--seed', type=int, default=0, help='seed of the validation simulation')
 
 
-def run(args):
-    raise SystemExit('herd-ros: this verb is not implemented yet')
+def _fmt(x, nd=3):
+    return 'n/a' if x is None or not np.isfinite(x) else f'{x:.{nd}f}'
+
+
+def run(args) -> int:
+    grid = parse_grid(args.grid)
+    bounds = parse_floats(args.bounds, 4, '--bounds') if args.bounds else None
+    runs, datum = load_runs(args.data, dt=args.dt, smoother=args.smoother)
+    train, test = split_runs(runs, args.train_fraction)
+    bar = progress(total=len(runs[0].agents), desc='fitting agents', unit='agent')
+    fit = fit_herd(train, grid=grid, bounds=bounds, min_visits=args.min_visits,
+                   ridge=args.ridge, se=args.se, datum=datum,
+                   progress=lambda a: bar.update(1))
+    bar.close()
+    save_model(fit.model, args.output)
+    summary = validate(fit, train, test, seed=args.seed)
+    _print_summary(fit, summary, args)
+    if args.report:
+        from herd_ros.report.fit_figures import write_fit_figures
+        paths = write_fit_figures(fit, summary, train, args.report)
+        public = {k: v for k, v in summary.items() if not k.startswith('_')}
+        public['model_file'] = str(Path(args.output))
+        public['figures'] = [p.name for p in paths]
+        public['notes'] = ('The pairwise interaction parameters theta1/theta2 are weakly '
+                           'identifiable from realistic data: read them with their 95 % '
+                           'intervals (interaction.*.theta*_ci95), not as bare numbers.')
+        (Path(args.report) / 'summary.json').write_text(json.dumps(public, indent=1))
+        print(f'report: {len(paths)} figures and summary.json in {args.report}')
+    return 0
+
+
+def _print_summary(fit, summary, args):
+    ev = summary['evaluated_on']
+    one = summary['one_step_rms']
+    print(f'model: {args.output}  ({fit.model.n_agents} agents, dt {fit.model.dt:g} s, '
+          f'{summary["agents"][fit.model.agents[0]]["samples"]} training samples per agent)')
+    print(f'one-step RMS (m) on {ev} data: model / constant velocity / stay-put; whiteness = '
+          f'fraction of lags inside the 90 % band, Ljung-Box Q')
+    print(f'{"agent":>12} {"damping":>16} {"model":>8} {"const-v":>8} {"stay":>8} '
+          f'{"white v":>8} {"white w":>8} {"LB v":>10} {"LB w":>10}')
+    for a in fit.model.agents:
+        s = summary['agents'][a]
+        wv, wr = s['whiteness_velocity'], s['whiteness_residual']
+        print(f'{a:>12} {s["damping"]:8.4f}±{_fmt(s["damping_se"], 4):<7} '
+              f'{one["model"][a]:8.3f} {one["constant_velocity"][a]:8.3f} '
+              f'{one["stay_put"][a]:8.3f} {wv["inside_90"]:8.0%} {wr["inside_90"]:8.0%} '
+              f'{wv["ljung_box"]:10.1f} {wr["ljung_box"]:10.1f}')
+    print(f'{"herd":>12} {"":16} {one["model"]["herd"]:8.3f} '
+          f'{one["constant_velocity"]["herd"]:8.3f} {one["stay_put"]["herd"]:8.3f}')
+    weak = [k for k, c in summary['interaction'].items() if not c['identifiable']]
+    if weak:
+        print(f'note: {len(weak)} of {len(summary["interaction"])} pairwise interactions are '
+              f'not significantly identified (95 % interval of theta1 or theta2 includes 0); '
+              f'see the report')

@@ -1,0 +1,98 @@
+"""The paper's validation of a fitted herd model, as numbers (the figures draw from these).
+
+* one-step and k-step RMS of the model next to constant velocity and stay-put, on held-out
+  data (a time split);
+* whiteness of the velocity and of the residual w_i (autocorrelation bands, Ljung–Box);
+* interaction force curves F_ij(d) = θ1_ij − θ2_ij/d with 95 % confidence bands over the
+  observed distances, and equilibrium distances with their intervals;
+* simulated vs real herd statistics (simulation of the learned laws with noise from Q_i).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from herd_ros.estimation.herd_fit import HerdFit, aligned_positions
+from herd_ros.estimation.whiteness import whiteness
+from herd_ros.simulation.herd_simulator import simulate_from
+from herd_ros.simulation.prediction import k_step_rms, one_step_rms
+from herd_ros.simulation.statistics import herd_statistics, relative_differences
+from herd_ros.trajectory import HerdTrajectory
+
+Z95 = 1.959963984540054
+
+
+def force_curves(fit: HerdFit, runs: list[HerdTrajectory], n_points: int = 100) -> dict:
+    """F_ij(d) with 95 % bands over the 1st–99th percentile of the observed d_ij."""
+    model = fit.model
+    agents = model.agents
+    n = len(agents)
+    out = {}
+    for i, a in enumerate(agents):
+        law = model.laws[a]
+        cov = fit.fits[a].theta_cov if a in fit.fits else None
+        for k, b in enumerate(law.neighbors):
+            j = agents.index(b)
+            d_obs = np.concatenate([np.sqrt(((aligned_positions(r, agents)[:, j]
+                                              - aligned_positions(r, agents)[:, i]) ** 2).sum(-1))
+                                    for r in runs])
+            lo, hi = np.percentile(d_obs, [1, 99])
+            d = np.linspace(max(lo, 1e-3), hi, n_points)
+            f = law.theta1[k] - law.theta2[k] / d
+            i1, i2 = 1 + k, 1 + (n - 1) + k
+            if cov is not None:
+                c11, c22, c12 = cov[i1, i1], cov[i2, i2], cov[i1, i2]
+            else:
+                se = law.theta_se
+                c11, c22, c12 = se[i1] ** 2, se[i2] ** 2, 0.0
+            sd = np.sqrt(np.clip(c11 + c22 / d ** 2 - 2 * c12 / d, 0, None))
+            t1, t2 = law.theta1[k], law.theta2[k]
+            s1, s2 = np.sqrt(c11), np.sqrt(c22)
+            out[f'{a}->{b}'] = {
+                'distance': d.tolist(), 'force': f.tolist(),
+                'lower95': (f - Z95 * sd).tolist(), 'upper95': (f + Z95 * sd).tolist(),
+                'theta1': float(t1), 'theta1_ci95': [float(t1 - Z95 * s1), float(t1 + Z95 * s1)],
+                'theta2': float(t2), 'theta2_ci95': [float(t2 - Z95 * s2), float(t2 + Z95 * s2)],
+                'equilibrium_distance': float(t2 / t1) if t1 > 0 else None,
+                'observed_distance_range': [float(lo), float(hi)],
+                'identifiable': bool(abs(t1) > Z95 * s1 and abs(t2) > Z95 * s2),
+            }
+    return out
+
+
+def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajectory],
+             seed=0, ks=(1, 5, 10, 30)) -> dict:
+    """Every number of the fit report (see the module docstring)."""
+    model = fit.model
+    held_out = [r for r in test if r.n_steps >= 3]
+    evaluate_on = held_out if sum(r.n_steps for r in held_out) >= 100 else train
+    summary = {'evaluated_on': 'held-out' if evaluate_on is held_out else 'training',
+               'agents': {}}
+    summary['one_step_rms'] = one_step_rms(model, evaluate_on)
+    summary['k_step_rms'] = {m: {str(k): v for k, v in d.items()}
+                             for m, d in k_step_rms(model, evaluate_on, ks).items()}
+    for a in model.agents:
+        vel, res = [], []
+        for r in evaluate_on:
+            p = aligned_positions(r, model.agents)
+            i = model.agents.index(a)
+            vel.append(np.diff(p[:, i], axis=0) / model.dt)
+            res.append(model.residuals(p)[:, i])
+        wv, wr = whiteness(np.concatenate(vel)), whiteness(np.concatenate(res))
+        law = model.laws[a]
+        summary['agents'][a] = {
+            'damping': float(law.damping),
+            'damping_se': float(law.theta_se[0]) if law.theta_se is not None else None,
+            'field_centres': int(law.basis.size),
+            'samples': int(fit.fits[a].n_samples) if a in fit.fits else None,
+            'condition': float(fit.fits[a].condition) if a in fit.fits else None,
+            'noise_cov': law.noise_cov.ravel().tolist(),
+            'whiteness_velocity': wv.as_dict(), 'whiteness_residual': wr.as_dict(),
+            'acf_velocity': wv.acf.tolist(), 'acf_residual': wr.acf.tolist(),
+        }
+    summary['interaction'] = force_curves(fit, train)
+    sims = [simulate_from(model, r, seed=seed + k) for k, r in enumerate(train)]
+    real_stats, sim_stats = herd_statistics(train), herd_statistics(sims)
+    summary['statistics'] = {'real': real_stats, 'simulated': sim_stats,
+                             'relative_difference': relative_differences(real_stats, sim_stats)}
+    summary['_simulated_runs'] = sims
+    return summary

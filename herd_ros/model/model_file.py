@@ -1,0 +1,180 @@
+"""The model file of DESIGN.md: a ROS 2 parameters YAML (usable with ``--params-file``).
+
+::
+
+    /**:
+      ros__parameters:
+        model:
+          kind: schwager2007
+          dt: 60.0
+          frame_id: map
+          datum: [lat, lon, alt]
+          agents: [cow_1, cow_2]
+          cow_1: {damping, neighbors, theta1, theta2, rbf_centers_x, rbf_centers_y,
+                  rbf_sigma, field_u, field_v, noise_cov, theta_se}
+
+Every number is written as a float (ROS parameter arrays must be homogeneous), and agent
+ids must be valid ROS name tokens because they become parameter and topic names.
+"""
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from herd_ros.errors import HerdInputError
+from herd_ros.model.herd_model import KIND, AgentLaw, HerdModel
+from herd_ros.model.rbf_field import RbfBasis
+
+ROS_TOKEN = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
+AGENT_KEYS = ('damping', 'neighbors', 'theta1', 'theta2', 'rbf_centers_x', 'rbf_centers_y',
+              'rbf_sigma', 'field_u', 'field_v', 'noise_cov')
+
+
+class _FlowListDumper(yaml.SafeDumper):
+    """Block mappings, flow (inline) sequences: the layout of DESIGN.md."""
+
+
+def _represent_list(dumper, data):
+    return dumper.represent_sequence('tag:yaml.org,2002:seq', data, flow_style=True)
+
+
+_FlowListDumper.add_representer(list, _represent_list)
+
+
+def check_agent_id(agent: str) -> str:
+    if not ROS_TOKEN.match(str(agent)):
+        raise HerdInputError(f'agent id {agent!r} is not a valid ROS name (letters, digits and '
+                             f'underscores, starting with a letter): it becomes a topic and '
+                             f'parameter name')
+    return str(agent)
+
+
+def _floats(values) -> list[float]:
+    return [float(v) for v in np.asarray(values, dtype=float).ravel()]
+
+
+def model_to_dict(model: HerdModel) -> dict:
+    """The ``model:`` mapping of the parameters file."""
+    body = {'kind': KIND, 'dt': float(model.dt), 'frame_id': model.frame_id}
+    if model.datum is not None:
+        body['datum'] = _floats(model.datum)
+    body['agents'] = [check_agent_id(a) for a in model.agents]
+    for a in model.agents:
+        law = model.laws[a]
+        if law.basis.size == 0:
+            raise HerdInputError(f'agent {a} has no field centre; a ROS parameter array cannot '
+                                 f'be empty (lower --min-visits or widen --bounds)')
+        if len(law.neighbors) == 0:
+            raise HerdInputError(f'agent {a} has no neighbour; the pairwise law needs at least '
+                                 f'two agents')
+        entry = {
+            'damping': float(law.damping),
+            'neighbors': [check_agent_id(j) for j in law.neighbors],
+            'theta1': _floats(law.theta1),
+            'theta2': _floats(law.theta2),
+            'rbf_centers_x': _floats(law.basis.centers[:, 0]),
+            'rbf_centers_y': _floats(law.basis.centers[:, 1]),
+            'rbf_sigma': _floats(law.basis.sigma),
+            'field_u': _floats(law.field_u),
+            'field_v': _floats(law.field_v),
+            'noise_cov': _floats(law.noise_cov),
+        }
+        if law.theta_se is not None:
+            entry['theta_se'] = _floats(law.theta_se)
+        body[a] = entry
+    return body
+
+
+def model_from_dict(body: dict, source: str = 'model') -> HerdModel:
+    """Inverse of :func:`model_to_dict`; errors name the source and the key."""
+    def need(mapping, key, where):
+        if key not in mapping:
+            raise HerdInputError(f'{source}: {where} has no key {key!r}')
+        return mapping[key]
+
+    kind = body.get('kind', KIND)
+    if kind != KIND:
+        raise HerdInputError(f'{source}: model kind {kind!r} is not {KIND!r}')
+    agents = [str(a) for a in need(body, 'agents', 'model')]
+    laws = {}
+    for a in agents:
+        entry = need(body, a, 'model')
+        for key in AGENT_KEYS:
+            need(entry, key, f'model.{a}')
+        try:
+            cx = np.asarray(entry['rbf_centers_x'], dtype=float)
+            cy = np.asarray(entry['rbf_centers_y'], dtype=float)
+            if cx.shape != cy.shape:
+                raise HerdInputError(f'{source}: model.{a}: rbf_centers_x and rbf_centers_y '
+                                     f'differ in length')
+            basis = RbfBasis(np.column_stack([cx, cy]), np.asarray(entry['rbf_sigma'], float))
+            laws[a] = AgentLaw(
+                damping=float(entry['damping']),
+                neighbors=[str(j) for j in entry['neighbors']],
+                theta1=entry['theta1'], theta2=entry['theta2'], basis=basis,
+                field_u=entry['field_u'], field_v=entry['field_v'],
+                noise_cov=entry['noise_cov'], theta_se=entry.get('theta_se'))
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, HerdInputError):
+                raise HerdInputError(f'{source}: model.{a}: {exc}') from None
+            raise HerdInputError(f'{source}: model.{a}: malformed numbers ({exc})') from None
+    return HerdModel(agents=agents, dt=float(need(body, 'dt', 'model')), laws=laws,
+                     frame_id=str(body.get('frame_id', 'map')), datum=body.get('datum'))
+
+
+def dump_parameters(model_body: dict, node: str = '/**') -> str:
+    """Text of a ROS parameters YAML with ``model_body`` under ``model``."""
+    return yaml.dump({node: {'ros__parameters': {'model': model_body}}},
+                     Dumper=_FlowListDumper, sort_keys=False, width=100)
+
+
+def write_atomic(path, text: str) -> Path:
+    """Write ``text`` to ``path`` by write-then-rename, so readers never see half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
+    try:
+        with os.fdopen(fd, 'w') as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def save_model(model: HerdModel, path) -> Path:
+    """Write the model file of DESIGN.md."""
+    return write_atomic(path, dump_parameters(model_to_dict(model)))
+
+
+def load_model_body(path) -> dict:
+    """The ``model:`` mapping of a parameters YAML (any node key), with clear errors."""
+    path = Path(path)
+    if not path.is_file():
+        raise HerdInputError(f'{path}: no such model file')
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise HerdInputError(f'{path}: not valid YAML ({str(exc).splitlines()[0]})') from None
+    if not isinstance(doc, dict):
+        raise HerdInputError(f'{path}: expected a ROS parameters mapping')
+    for node_params in doc.values():
+        if isinstance(node_params, dict):
+            params = node_params.get('ros__parameters', {})
+            if isinstance(params, dict) and isinstance(params.get('model'), dict):
+                return params['model']
+    raise HerdInputError(f'{path}: no "<node>: ros__parameters: model:" mapping found')
+
+
+def load_model(path) -> HerdModel:
+    """Read a model file written by :func:`save_model` (or by hand)."""
+    return model_from_dict(load_model_body(path), source=str(path))

@@ -1,0 +1,122 @@
+"""Gaussian radial-basis environment field g_i(p) of the herd model (Schwager et al. 2007, eq. 5).
+
+    g_i(p) = Σ_k [θu_ik, θv_ik]ᵀ φ_k(p),   φ_k(p) = exp(−‖p − γ_k‖² / 2σ_k²) / (σ_k √(2π))
+
+Centres γ_k sit at the cell centres of an even ``nx × ny`` grid over the region the herd
+visited (or given bounds); every σ_k is 2/3 of the grid spacing (the mean of the x and y
+spacings when they differ). A centre is kept only where the data visit its cell at least
+``min_visits`` times, so the fitted field is made of bumps that sit over data: it decays to
+zero away from the visited region instead of extrapolating (the paper prunes the same way).
+
+The field is deliberately not a gradient: θu and θv are free, so herds can circulate.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from herd_ros.errors import HerdInputError
+
+SQRT_2PI = float(np.sqrt(2.0 * np.pi))
+
+#: Default number of samples of an agent that must fall in a cell to keep its centre.
+DEFAULT_MIN_VISITS = 10
+
+
+@dataclass(frozen=True)
+class FieldGrid:
+    """An even grid of RBF centres over ``bounds = (xmin, xmax, ymin, ymax)`` (metres)."""
+
+    nx: int
+    ny: int
+    bounds: tuple[float, float, float, float]
+
+    def __post_init__(self):
+        if self.nx < 1 or self.ny < 1:
+            raise HerdInputError(f'field grid must be at least 1x1, got {self.nx}x{self.ny}')
+        xmin, xmax, ymin, ymax = self.bounds
+        if not (np.isfinite(self.bounds).all() and xmax > xmin and ymax > ymin):
+            raise HerdInputError(f'field bounds must satisfy xmin < xmax and ymin < ymax, '
+                                 f'got {self.bounds}')
+
+    @property
+    def spacing(self) -> tuple[float, float]:
+        xmin, xmax, ymin, ymax = self.bounds
+        return (xmax - xmin) / self.nx, (ymax - ymin) / self.ny
+
+    @property
+    def sigma(self) -> float:
+        """σ = 2/3 of the grid spacing (mean of the x and y spacings)."""
+        sx, sy = self.spacing
+        return (2.0 / 3.0) * 0.5 * (sx + sy)
+
+    def centers(self) -> np.ndarray:
+        """(nx·ny, 2) cell centres, x fastest."""
+        xmin, xmax, ymin, ymax = self.bounds
+        sx, sy = self.spacing
+        cx = xmin + sx * (np.arange(self.nx) + 0.5)
+        cy = ymin + sy * (np.arange(self.ny) + 0.5)
+        gx, gy = np.meshgrid(cx, cy)
+        return np.column_stack([gx.ravel(), gy.ravel()])
+
+    def cell_visits(self, points: np.ndarray) -> np.ndarray:
+        """How many of ``points`` (M, 2) fall in each cell (points outside count nowhere)."""
+        xmin, xmax, ymin, ymax = self.bounds
+        sx, sy = self.spacing
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        ix = np.floor((pts[:, 0] - xmin) / sx).astype(np.int64)
+        iy = np.floor((pts[:, 1] - ymin) / sy).astype(np.int64)
+        inside = (ix >= 0) & (ix < self.nx) & (iy >= 0) & (iy < self.ny)
+        flat = iy[inside] * self.nx + ix[inside]
+        return np.bincount(flat, minlength=self.nx * self.ny)
+
+    @staticmethod
+    def over(points: np.ndarray, nx: int, ny: int, margin: float = 0.0) -> 'FieldGrid':
+        """The grid over the bounding box of ``points`` (M, 2), widened by ``margin`` (m)."""
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        lo = pts.min(axis=0) - margin
+        hi = pts.max(axis=0) + margin
+        span = np.maximum(hi - lo, 1e-6)
+        hi = lo + span
+        return FieldGrid(nx, ny, (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])))
+
+
+@dataclass
+class RbfBasis:
+    """A set of Gaussian centres γ_k (K, 2) with widths σ_k (K,)."""
+
+    centers: np.ndarray
+    sigma: np.ndarray
+
+    def __post_init__(self):
+        self.centers = np.asarray(self.centers, dtype=float).reshape(-1, 2)
+        self.sigma = np.broadcast_to(np.asarray(self.sigma, dtype=float),
+                                     (len(self.centers),)).copy()
+
+    @property
+    def size(self) -> int:
+        return len(self.centers)
+
+    def features(self, points: np.ndarray) -> np.ndarray:
+        """φ_k(p) for ``points`` (..., 2) -> (..., K) (eq. 5 basis)."""
+        pts = np.asarray(points, dtype=float)
+        d2 = ((pts[..., None, :] - self.centers) ** 2).sum(-1)
+        return np.exp(-d2 / (2.0 * self.sigma ** 2)) / (self.sigma * SQRT_2PI)
+
+    @staticmethod
+    def from_grid(grid: FieldGrid, visits_of: np.ndarray | None = None,
+                  min_visits: int = DEFAULT_MIN_VISITS) -> 'RbfBasis':
+        """Centres of ``grid``; with ``visits_of`` (M, 2) only cells visited ≥ min_visits times."""
+        centers = grid.centers()
+        if visits_of is not None:
+            keep = grid.cell_visits(visits_of) >= min_visits
+            centers = centers[keep]
+        return RbfBasis(centers, np.full(len(centers), grid.sigma))
+
+
+def field_value(basis: RbfBasis, field_u: np.ndarray, field_v: np.ndarray,
+                points: np.ndarray) -> np.ndarray:
+    """g(p) = Σ_k [θu_k, θv_k] φ_k(p) for ``points`` (..., 2) -> (..., 2)."""
+    phi = basis.features(points)
+    return np.stack([phi @ np.asarray(field_u), phi @ np.asarray(field_v)], axis=-1)

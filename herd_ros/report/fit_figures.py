@@ -1,0 +1,149 @@
+"""PNG figures of a herd fit, after Schwager et al. (2007) Figs. 2–6 (matplotlib, Agg)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from herd_ros.estimation.herd_fit import HerdFit, aligned_positions  # noqa: E402
+from herd_ros.simulation.statistics import STATISTICS  # noqa: E402
+
+
+def _grid_of(n):
+    cols = int(np.ceil(np.sqrt(n)))
+    return int(np.ceil(n / cols)), cols
+
+
+def interaction_figure(summary: dict, path: Path):
+    """Fig. 2: F_ij(d) per ordered pair with its 95 % band (positive = attraction)."""
+    pairs = summary['interaction']
+    rows, cols = _grid_of(len(pairs))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.8 * rows), squeeze=False)
+    for ax, (name, c) in zip(axes.flat, pairs.items()):
+        d = np.asarray(c['distance'])
+        ax.fill_between(d, c['lower95'], c['upper95'], color='C0', alpha=0.25, label='95 %')
+        ax.plot(d, c['force'], 'C0')
+        ax.axhline(0, color='k', lw=0.6)
+        tag = '' if c['identifiable'] else ' (weakly identified)'
+        ax.set_title(f'{name}{tag}', fontsize=8)
+        ax.set_xlabel('distance d (m)', fontsize=8)
+        ax.set_ylabel('F(d) (m/s per step)', fontsize=8)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[len(pairs):]:
+        ax.axis('off')
+    fig.suptitle('Interaction force F_ij(d) = θ1 − θ2/d over the observed distances')
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def field_figure(fit: HerdFit, runs, path: Path, n_arrows: int = 20):
+    """Fig. 3: each agent's environment vector field g_i with its centres and its path."""
+    model = fit.model
+    rows, cols = _grid_of(model.n_agents)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 4.0 * rows), squeeze=False)
+    xmin, xmax, ymin, ymax = fit.grid.bounds
+    gx, gy = np.meshgrid(np.linspace(xmin, xmax, n_arrows), np.linspace(ymin, ymax, n_arrows))
+    pts = np.column_stack([gx.ravel(), gy.ravel()])
+    for i, (ax, a) in enumerate(zip(axes.flat, model.agents)):
+        law = model.laws[a]
+        phi = law.basis.features(pts)
+        g = np.column_stack([phi @ law.field_u, phi @ law.field_v])
+        for r in runs:
+            p = aligned_positions(r, model.agents)[:, i]
+            ax.plot(p[:, 0], p[:, 1], color='0.6', lw=0.4)
+        ax.quiver(pts[:, 0], pts[:, 1], g[:, 0], g[:, 1], color='C3', angles='xy')
+        ax.plot(law.basis.centers[:, 0], law.basis.centers[:, 1], 'k+', ms=6)
+        ax.set_title(f'{a}: field g (arrows), centres (+), path', fontsize=8)
+        ax.set_aspect('equal')
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[model.n_agents:]:
+        ax.axis('off')
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def whiteness_figure(summary: dict, path: Path):
+    """Fig. 4: autocorrelation of velocity vs residual (x component) with 90/95 % bands."""
+    agents = list(summary['agents'])
+    rows, cols = _grid_of(len(agents))
+    fig, axes = plt.subplots(rows, cols, figsize=(4.0 * cols, 3.0 * rows), squeeze=False)
+    for ax, a in zip(axes.flat, agents):
+        s = summary['agents'][a]
+        av, ar = np.asarray(s['acf_velocity']), np.asarray(s['acf_residual'])
+        n = s['whiteness_residual']['n']
+        lags = np.arange(len(av))
+        ax.plot(lags[1:], av[1:, 0], 'C0.-', ms=3, label='velocity')
+        ax.plot(lags[1:], ar[1:, 0], 'C3.-', ms=3, label='residual')
+        for z, ls in ((1.645, ':'), (1.96, '--')):
+            ax.axhline(z / np.sqrt(n), color='k', ls=ls, lw=0.7)
+            ax.axhline(-z / np.sqrt(n), color='k', ls=ls, lw=0.7)
+        wr, wv = s['whiteness_residual'], s['whiteness_velocity']
+        ax.set_title(f'{a}: inside 90 % band: residual {wr["inside_90"]:.0%}, '
+                     f'velocity {wv["inside_90"]:.0%}', fontsize=8)
+        ax.set_xlabel('lag (steps)', fontsize=8)
+        ax.legend(fontsize=7)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[len(agents):]:
+        ax.axis('off')
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def trajectories_figure(real_runs, sim_runs, agents, path: Path, title='simulated vs real',
+                        labels=('real', 'simulated')):
+    """Fig. 5: simulated vs real trajectories side by side."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.6), sharex=True, sharey=True)
+    for ax, runs, label in zip(axes, (real_runs, sim_runs), labels):
+        for r in runs:
+            idx = [r.agents.index(a) for a in agents if a in r.agents]
+            for k, i in enumerate(idx):
+                ax.plot(r.positions[:, i, 0], r.positions[:, i, 1], color=f'C{k % 10}', lw=0.6,
+                        label=r.agents[i] if r is runs[0] else None)
+        ax.set_title(label)
+        ax.set_aspect('equal')
+        ax.set_xlabel('x east (m)')
+    axes[0].set_ylabel('y north (m)')
+    axes[0].legend(fontsize=7)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def statistics_figure(real: dict, other: dict, path: Path, labels=('real', 'simulated')):
+    """Fig. 6: per-agent mean/std of distance to the others and of speed, bars side by side."""
+    agents = list(real)
+    fig, axes = plt.subplots(1, 4, figsize=(14, 3.4))
+    x = np.arange(len(agents))
+    for ax, stat in zip(axes, STATISTICS):
+        ax.bar(x - 0.2, [real[a][stat] for a in agents], 0.4, label=labels[0])
+        ax.bar(x + 0.2, [other[a][stat] if a in other else np.nan for a in agents], 0.4,
+               label=labels[1])
+        ax.set_xticks(x, agents, rotation=45, fontsize=7)
+        ax.set_title(stat.replace('_', ' ') + (' (m)' if 'distance' in stat else ' (m/s)'))
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_fit_figures(fit: HerdFit, summary: dict, train_runs, out_dir) -> list[Path]:
+    """All five figures of the fit report into ``out_dir``; returns their paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / 'fig2_interaction.png', out / 'fig3_field.png', out / 'fig4_whiteness.png',
+             out / 'fig5_trajectories.png', out / 'fig6_statistics.png']
+    interaction_figure(summary, paths[0])
+    field_figure(fit, train_runs, paths[1])
+    whiteness_figure(summary, paths[2])
+    trajectories_figure(train_runs, summary['_simulated_runs'], fit.model.agents, paths[3])
+    st = summary['statistics']
+    statistics_figure(st['real'], st['simulated'], paths[4])
+    return paths

@@ -1,0 +1,68 @@
+"""Forward simulation of a learned (or true) herd model, eq. 2 with noise w_i ~ N(0, Q_i).
+
+    u^{τ+1} = a ⊙ u^τ + Σ_j f_ij(p^τ) + g_i(p^τ) + w^τ,     p^{τ+1} = p^τ + Δt u^τ
+
+All agents advance together (arrays of shape (N, 2)); one Python step per time step.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from herd_ros.errors import HerdInputError
+from herd_ros.model.herd_model import HerdModel
+from herd_ros.trajectory import HerdTrajectory
+
+
+def noise_factors(noise_cov: np.ndarray) -> np.ndarray:
+    """L_i with L_i L_iᵀ = Q_i for (N, 2, 2) covariances (PSD; singular allowed)."""
+    Q = 0.5 * (noise_cov + np.swapaxes(noise_cov, -1, -2))
+    w, V = np.linalg.eigh(Q)
+    if (w < -1e-9 * np.maximum(np.abs(w).max(), 1e-300)).any():
+        raise HerdInputError('a noise covariance Q_i is not positive semi-definite')
+    return V * np.sqrt(np.clip(w, 0, None))[..., None, :]
+
+
+def simulate(model: HerdModel, steps: int, initial_positions: np.ndarray,
+             initial_velocities: np.ndarray | None = None, seed=None, noise: bool = True,
+             noise_scale: float = 1.0, t0: float = 0.0, progress=None) -> HerdTrajectory:
+    """Simulate ``steps`` positions (including the initial one) of every agent.
+
+    Args:
+        model: the herd model.
+        initial_positions: (N, 2) p^0.
+        initial_velocities: (N, 2) u^0 (default zero).
+        seed: seed of the noise generator (``numpy.random.default_rng``).
+        noise: draw w from Q_i (else the deterministic law).
+    Returns:
+        a :class:`HerdTrajectory` with times t0 + Δt·τ.
+    """
+    if steps < 1:
+        raise HerdInputError(f'steps must be ≥ 1, got {steps}')
+    n = model.n_agents
+    p = np.array(initial_positions, dtype=float).reshape(n, 2)
+    u = (np.zeros((n, 2)) if initial_velocities is None
+         else np.array(initial_velocities, dtype=float).reshape(n, 2))
+    rng = np.random.default_rng(seed)
+    L = noise_factors(model.noise_cov) * noise_scale
+    out = np.empty((steps, n, 2))
+    out[0] = p
+    for tau in range(1, steps):
+        u_next = model.next_velocity(u, p)
+        if noise:
+            u_next = u_next + np.einsum('nij,nj->ni', L, rng.standard_normal((n, 2)))
+        p = p + model.dt * u
+        u = u_next
+        out[tau] = p
+        if progress is not None and tau % 1000 == 0:
+            progress(1000)
+    times = t0 + model.dt * np.arange(steps)
+    return HerdTrajectory(times, list(model.agents), out)
+
+
+def simulate_from(model: HerdModel, run: HerdTrajectory, steps: int | None = None, seed=None,
+                  noise: bool = True) -> HerdTrajectory:
+    """Simulate from the first two positions of ``run`` (p^0 and u^0 = (p^1 − p^0)/Δt)."""
+    p = run.positions
+    steps = run.n_steps if steps is None else steps
+    return simulate(model, steps, p[0], (p[1] - p[0]) / model.dt, seed=seed, noise=noise,
+                    t0=float(run.times[0]))

@@ -1,0 +1,44 @@
+"""Herd statistics compared between real and simulated herds (Schwager et al. 2007, Fig. 6).
+
+Per agent i, over all steps τ and all other agents j:
+    mean_distance, std_distance — mean and standard deviation of ‖p_j^τ − p_i^τ‖;
+    mean_speed, std_speed       — mean and standard deviation of ‖p_i^{τ+1} − p_i^τ‖/Δt.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from herd_ros.trajectory import HerdTrajectory
+
+STATISTICS = ('mean_distance', 'std_distance', 'mean_speed', 'std_speed')
+
+
+def herd_statistics(runs: list[HerdTrajectory] | HerdTrajectory) -> dict[str, dict[str, float]]:
+    """{agent: {mean_distance, std_distance, mean_speed, std_speed}} pooled over runs."""
+    if isinstance(runs, HerdTrajectory):
+        runs = [runs]
+    agents = list(runs[0].agents)
+    dists = {a: [] for a in agents}
+    speeds = {a: [] for a in agents}
+    for r in runs:
+        p = r.positions[:, [r.agents.index(a) for a in agents]]
+        d = np.sqrt(((p[:, None, :, :] - p[:, :, None, :]) ** 2).sum(-1))  # (T, N, N)
+        v = np.sqrt((np.diff(p, axis=0) ** 2).sum(-1)) / r.dt
+        for i, a in enumerate(agents):
+            dists[a].append(np.delete(d[:, i, :], i, axis=1).ravel())
+            speeds[a].append(v[:, i])
+    out = {}
+    for a in agents:
+        dd = np.concatenate(dists[a])
+        ss = np.concatenate(speeds[a])
+        dd = dd[np.isfinite(dd)]
+        ss = ss[np.isfinite(ss)]
+        out[a] = {'mean_distance': float(dd.mean()), 'std_distance': float(dd.std()),
+                  'mean_speed': float(ss.mean()), 'std_speed': float(ss.std())}
+    return out
+
+
+def relative_differences(reference: dict, other: dict) -> dict[str, dict[str, float]]:
+    """|other − reference| / |reference| per agent and statistic (agents present in both)."""
+    return {a: {k: abs(other[a][k] - reference[a][k]) / max(abs(reference[a][k]), 1e-12)
+                for k in STATISTICS} for a in reference if a in other}
