@@ -31,7 +31,7 @@ def parse_floats(text: str, n: int | tuple[int, ...], option: str) -> tuple[floa
 
 
 def progress(total=None, desc='', unit='it'):
-    """A tqdm bar on stderr (silent when stderr is not a terminal and CI is set)."""
+    """A tqdm bar on stderr; silent when stderr is not a terminal (logs, CI)."""
     from tqdm import tqdm
     return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False,
-                dynamic_ncols=True, mininterval=0.5)
+                dynamic_ncols=True, mininterval=0.5, disable=None)

@@ -1,10 +1,65 @@
-"""`herd-ros simulate` (not implemented yet)."""
-HELP = 'not implemented yet'
+"""`herd-ros simulate`: run a model file forward with noise drawn from Q_i."""
+from __future__ import annotations
+
+import numpy as np
+
+from herd_ros.cli.common import progress
+from herd_ros.data_sources import load_runs
+from herd_ros.errors import HerdInputError
+from herd_ros.model.model_file import load_model
+from herd_ros.simulation.herd_simulator import simulate
+from herd_ros.simulation.statistics import herd_statistics
+from herd_ros.trajectory import write_trajectory_csv
+
+HELP = 'simulate the learned laws of a model file (noise from each agent\'s Q_i)'
 
 
-def add_arguments(parser):
-    pass
+def add_arguments(p):
+    p.add_argument('model', help='model file written by `herd-ros fit`')
+    p.add_argument('--steps', type=int, default=3600, help='number of time steps')
+    p.add_argument('--seed', type=int, default=0, help='noise seed')
+    p.add_argument('-o', '--output', required=True, help='trajectory CSV to write')
+    p.add_argument('--initial', help='trajectory CSV whose first two steps start the '
+                                     'simulation (default: agents on a ring about the field)')
+    p.add_argument('--no-noise', action='store_true', help='deterministic simulation (w = 0)')
 
 
-def run(args):
-    raise SystemExit('herd-ros: this verb is not implemented yet')
+def default_initial_positions(model, seed=0):
+    """Agents on a ring of radius ~ the median equilibrium distance about the field centres."""
+    centres = np.concatenate([model.laws[a].basis.centers for a in model.agents])
+    c = centres.mean(axis=0)
+    deq = np.concatenate([model.laws[a].equilibrium_distance() for a in model.agents])
+    deq = deq[np.isfinite(deq) & (deq > 0)]
+    radius = float(np.clip(np.median(deq) if len(deq) else 10.0, 2.0, 100.0))
+    n = model.n_agents
+    ang = 2 * np.pi * np.arange(n) / n + np.random.default_rng(seed).uniform(0, 2 * np.pi)
+    return c + radius * np.column_stack([np.cos(ang), np.sin(ang)]) * max(1.0, n / 6)
+
+
+def run(args) -> int:
+    if args.steps < 2:
+        raise HerdInputError(f'--steps must be at least 2, got {args.steps}')
+    model = load_model(args.model)
+    u0 = None
+    if args.initial:
+        runs, _ = load_runs(args.initial)
+        r = runs[0]
+        missing = [a for a in model.agents if a not in r.agents]
+        if missing:
+            raise HerdInputError(f'{args.initial}: no data for agent(s) {", ".join(missing)}')
+        p = r.positions[:, [r.agents.index(a) for a in model.agents]]
+        p0, u0 = p[0], (p[1] - p[0]) / model.dt
+    else:
+        p0 = default_initial_positions(model, args.seed)
+    bar = progress(total=args.steps, desc='simulating', unit='step')
+    traj = simulate(model, args.steps, p0, u0, seed=args.seed, noise=not args.no_noise,
+                    progress=bar.update)
+    bar.close()
+    write_trajectory_csv(args.output, traj)
+    stats = herd_statistics(traj)
+    print(f'wrote {args.steps} steps of {model.n_agents} agents to {args.output}')
+    print(f'{"agent":>12} {"mean dist":>10} {"std dist":>10} {"mean speed":>11} {"std speed":>10}')
+    for a, s in stats.items():
+        print(f'{a:>12} {s["mean_distance"]:10.2f} {s["std_distance"]:10.2f} '
+              f'{s["mean_speed"]:11.3f} {s["std_speed"]:10.3f}')
+    return 0

@@ -1,10 +1,77 @@
-"""`herd-ros synth` (not implemented yet)."""
-HELP = 'not implemented yet'
+"""`herd-ros synth`: data with known truth (the model class) or a realistic cow herd."""
+from __future__ import annotations
+
+from herd_ros.cli.common import parse_floats, parse_grid, progress
+from herd_ros.errors import HerdInputError
+from herd_ros.model.model_file import load_model, save_model
+from herd_ros.simulation.herd_simulator import simulate
+from herd_ros.synthesis.known_truth import initial_positions, make_truth_model
+from herd_ros.trajectory import write_trajectory_csv
+
+HELP = 'synthesize herd data: from a herd-model law (known truth) or the realistic cow scenario'
 
 
-def add_arguments(parser):
-    pass
+def add_arguments(p):
+    p.add_argument('--law', choices=('schwager',), help='data from the herd model')
+    p.add_argument('--scenario', choices=('cows',), help='realistic cows (not in the model '
+                                                         'class): grazing/walking/resting')
+    p.add_argument('-o', '--output', required=True, help='trajectory CSV to write')
+    p.add_argument('--model', help='with --law: the model file to simulate (the truth); '
+                                   'without it a random truth is drawn')
+    p.add_argument('--truth-out', help='with --law and no --model: write the drawn truth here')
+    p.add_argument('--agents', type=int, default=3, help='herd size')
+    p.add_argument('--steps', type=int, default=20000, help='time steps (--law)')
+    p.add_argument('--dt', type=float, default=1.0, help='clock step (s)')
+    p.add_argument('--grid', default='6x6', help='truth RBF grid NXxNY (--law, no --model)')
+    p.add_argument('--bounds', default='-75,75,-75,75',
+                   help='truth grid bounds XMIN,XMAX,YMIN,YMAX (--law, no --model)')
+    p.add_argument('--noise-std', type=float, default=0.05,
+                   help='process noise std (m/s per step) of a drawn truth')
+    p.add_argument('--duration', type=float, default=3600.0, help='seconds (--scenario cows)')
+    p.add_argument('--gps-out', help='with --scenario cows: also write collar fixes (GPS CSV) '
+                                     'with the collar error model')
+    p.add_argument('--seed', type=int, default=0, help='random seed')
 
 
-def run(args):
-    raise SystemExit('herd-ros: this verb is not implemented yet')
+def run(args) -> int:
+    if (args.law is None) == (args.scenario is None):
+        raise HerdInputError('give exactly one of --law schwager or --scenario cows')
+    if args.law:
+        return _law(args)
+    return _cows(args)
+
+
+def _law(args) -> int:
+    if args.model:
+        truth = load_model(args.model)
+    else:
+        truth = make_truth_model(args.agents, seed=args.seed, grid=parse_grid(args.grid),
+                                 bounds=parse_floats(args.bounds, 4, '--bounds'), dt=args.dt,
+                                 noise_std=args.noise_std)
+        if args.truth_out:
+            save_model(truth, args.truth_out)
+            print(f'truth model: {args.truth_out}')
+    p0 = initial_positions(truth, seed=args.seed,
+                           spread=min(30.0, 5.0 * truth.n_agents))
+    bar = progress(total=args.steps, desc='simulating', unit='step')
+    traj = simulate(truth, args.steps, p0, seed=args.seed + 1, progress=bar.update)
+    bar.close()
+    write_trajectory_csv(args.output, traj)
+    print(f'wrote {args.steps} steps of {truth.n_agents} agents (dt {truth.dt:g} s) '
+          f'to {args.output}')
+    return 0
+
+
+def _cows(args) -> int:
+    from herd_ros.synthesis.cow_scenario import simulate_cow_herd
+    traj = simulate_cow_herd(n_cows=args.agents, duration_s=args.duration, dt=args.dt,
+                             seed=args.seed)
+    write_trajectory_csv(args.output, traj)
+    print(f'wrote {traj.n_steps} steps of {traj.n_agents} cows (dt {args.dt:g} s) to '
+          f'{args.output}')
+    if args.gps_out:
+        from herd_ros.synthesis.collar_errors import simulate_collar_fixes, write_gps_csv
+        fixes = simulate_collar_fixes(traj, seed=args.seed + 1)
+        write_gps_csv(fixes, args.gps_out)
+        print(f'collar fixes (synthetic GPS errors): {args.gps_out}')
+    return 0

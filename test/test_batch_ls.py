@@ -1,0 +1,69 @@
+"""The structured QR solver against an independent dense least-squares solution."""
+import numpy as np
+import pytest
+
+from herd_ros.errors import HerdInputError
+from herd_ros.estimation.batch_ls import fit_agent
+from herd_ros.model.regressors import AgentRegression
+
+
+def random_regression(m=400, pa=5, K=7, seed=0, noise=0.1):
+    rng = np.random.default_rng(seed)
+    A_x, A_y = rng.normal(size=(m, pa)), rng.normal(size=(m, pa))
+    F = np.abs(rng.normal(size=(m, K)))
+    theta = rng.normal(size=pa + 2 * K)
+    reg = AgentRegression('a', ['b'], A_x, A_y, F, np.zeros(m), np.zeros(m))
+    phi, _ = reg.design()
+    y = phi @ theta + noise * rng.normal(size=2 * m)
+    reg.y_x, reg.y_y = y[:m], y[m:]
+    return reg, theta
+
+
+def test_structured_qr_equals_dense_lstsq():
+    reg, _ = random_regression()
+    phi, y = reg.design()
+    expected = np.linalg.lstsq(phi, y, rcond=None)[0]
+    fit = fit_agent(reg)
+    np.testing.assert_allclose(fit.theta, expected, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(fit.residuals.T.ravel(), y - phi @ expected, atol=1e-10)
+
+
+def test_ols_standard_errors_match_textbook_formula():
+    reg, _ = random_regression(seed=3)
+    phi, y = reg.design()
+    theta = np.linalg.lstsq(phi, y, rcond=None)[0]
+    r = y - phi @ theta
+    s2 = r @ r / (len(y) - len(theta))
+    # independent: textbook sigma^2 (Phi^T Phi)^-1 via a solve on the Gram matrix
+    expected = np.sqrt(s2 * np.diag(np.linalg.solve(phi.T @ phi, np.eye(len(theta)))))
+    np.testing.assert_allclose(fit_agent(reg, se='ols').theta_se, expected, rtol=1e-8)
+
+
+def test_ridge_equals_augmented_dense_problem():
+    reg, _ = random_regression(seed=1)
+    phi, y = reg.design()
+    lam = 0.3
+    D = np.sqrt(lam) * np.linalg.norm(phi, axis=0)
+    expected = np.linalg.lstsq(np.vstack([phi, np.diag(D)]),
+                               np.concatenate([y, np.zeros(len(D))]), rcond=None)[0]
+    np.testing.assert_allclose(fit_agent(reg, ridge=lam).theta, expected, rtol=1e-9)
+
+
+def test_recovers_parameters_without_noise():
+    reg, theta = random_regression(noise=0.0, seed=2)
+    np.testing.assert_allclose(fit_agent(reg).theta, theta, rtol=1e-9, atol=1e-10)
+
+
+def test_singular_design_is_one_clear_error():
+    reg, _ = random_regression(seed=4)
+    reg.A_x[:, 1] = reg.A_x[:, 0]
+    reg.A_y[:, 1] = reg.A_y[:, 0]
+    with pytest.raises(HerdInputError, match='singular data'):
+        fit_agent(reg)
+    assert np.isfinite(fit_agent(reg, ridge=1e-3).theta).all()
+
+
+def test_fewer_samples_than_parameters():
+    reg, _ = random_regression(m=5, pa=5, K=7)
+    with pytest.raises(HerdInputError, match='fewer samples than parameters'):
+        fit_agent(reg)

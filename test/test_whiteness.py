@@ -1,0 +1,35 @@
+"""Whiteness statistics against hand-computed formulas and known processes."""
+import numpy as np
+from scipy import stats
+
+from herd_ros.estimation.whiteness import autocorrelation, whiteness
+
+
+def test_autocorrelation_matches_direct_sum():
+    x = np.random.default_rng(0).normal(size=200)
+    xc = x - x.mean()
+    direct = [np.sum(xc[k:] * xc[:len(x) - k]) / np.sum(xc * xc) for k in range(6)]
+    np.testing.assert_allclose(autocorrelation(x, 5), direct, atol=1e-12)
+
+
+def test_ljung_box_matches_hand_formula():
+    x = np.random.default_rng(1).normal(size=300)
+    w = whiteness(x, max_lag=10)
+    xc = x - x.mean()
+    n = len(x)
+    rho = [np.sum(xc[k:] * xc[:n - k]) / np.sum(xc * xc) for k in range(1, 11)]
+    q = n * (n + 2) * sum(r ** 2 / (n - k) for k, r in enumerate(rho, start=1))
+    assert np.isclose(w.ljung_box, q)
+    assert np.isclose(w.p_value, stats.chi2.sf(q, 10))
+
+
+def test_white_noise_inside_band_ar1_outside():
+    rng = np.random.default_rng(2)
+    e = rng.normal(size=(20000, 2))
+    white = whiteness(e)
+    assert white.inside_90 > 0.8 and white.p_value > 1e-3
+    ar = np.zeros_like(e)
+    for t in range(1, len(e)):
+        ar[t] = 0.9 * ar[t - 1] + e[t]
+    red = whiteness(ar)
+    assert red.inside_90 < 0.5 and red.ljung_box > 100 * white.ljung_box
