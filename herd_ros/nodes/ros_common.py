@@ -1,0 +1,92 @@
+"""What every herd_ros node shares: the run loop, time conversion, diagnostics, parameters.
+
+Kept small on purpose — nodes translate messages and parameters and hand the work to the
+core modules (which never import rclpy).
+"""
+from __future__ import annotations
+
+import signal
+import sys
+
+import rclpy
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.executors import ExternalShutdownException
+
+OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
+                          DiagnosticStatus.STALE)
+
+
+class ParameterError(ValueError):
+    """A parameter value a node cannot run with; the message names the parameter."""
+
+
+def stamp_to_seconds(stamp) -> float:
+    """builtin_interfaces/Time -> float seconds."""
+    return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+
+
+def seconds_to_stamp(t: float) -> Time:
+    """float seconds -> builtin_interfaces/Time (nanoseconds rounded, never negative)."""
+    ns = max(int(round(t * 1e9)), 0)
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def diagnostic_status(name: str, level, message: str, values: dict | None = None,
+                      hardware_id: str = '') -> DiagnosticStatus:
+    """A DiagnosticStatus with key/values rendered as text."""
+    level_byte = bytes([level]) if isinstance(level, int) else level
+    return DiagnosticStatus(level=level_byte, name=name, message=message,
+                            hardware_id=hardware_id,
+                            values=[KeyValue(key=str(k), value=_fmt(v))
+                                    for k, v in (values or {}).items()])
+
+
+def diagnostic_array(node, statuses) -> DiagnosticArray:
+    msg = DiagnosticArray()
+    msg.header.stamp = node.get_clock().now().to_msg()
+    msg.status = list(statuses)
+    return msg
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return f'{v:.6g}'
+    return str(v)
+
+
+def run_node(node_factory, args=None, executor=None) -> int:
+    """``rclpy.init`` → build the node → spin until Ctrl-C/SIGTERM → clean shutdown.
+
+    A :class:`ParameterError` at start-up is printed as one line and exits with status 2.
+    The node's ``on_shutdown()`` (if any) runs before the context is torn down (the
+    estimator writes its checkpoint there).
+    """
+    rclpy.init(args=args)
+    signal.signal(signal.SIGTERM, lambda *_: _raise_ki())
+    node = None
+    try:
+        try:
+            node = node_factory()
+        except ParameterError as exc:
+            print(f'error: {exc}', file=sys.stderr)
+            return 2
+        if executor is None:
+            rclpy.spin(node)
+        else:
+            executor.add_node(node)
+            executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            hook = getattr(node, 'on_shutdown', None)
+            if hook is not None:
+                hook()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def _raise_ki():
+    raise KeyboardInterrupt
