@@ -1,0 +1,292 @@
+"""One uniform clock of step ``dt`` for the whole herd, in data time (DESIGN.md, "Time").
+
+Ticks are the integer multiples of ``dt`` in epoch seconds (``t_k = k·dt``), so the clock does
+not depend on which collar spoke first, and a bag replayed at any rate gives the same ticks.
+The first tick is the first multiple of ``dt`` at or after the first stamp seen.
+
+The value of agent i at tick t is **causal**: the filter state after the last accepted fix
+with stamp ≤ t (its :class:`StateTimeline` entry), predicted to t with the filter's
+constant-velocity model (:func:`herd_ros.ingest.collar_filter.predict_state`). The agent is
+*stale* at t when that fix is more than ``stale_after`` seconds older than t (or there is
+none); it then carries the prediction, with its growing covariance, and the flag.
+
+Two drivers give the same snapshots for the same fixes:
+
+* offline, :func:`resample_timelines`: every agent's whole timeline at once, vectorized over
+  the ticks;
+* streaming, :class:`HerdClock`: fed one fix at a time (after its filter has processed it),
+  it emits the snapshot of tick t once every agent has reported (any fix, accepted or not)
+  with a stamp ≥ t, or has been silent for more than ``stale_after`` seconds of herd data
+  time (the latest stamp from any collar). Before its first report an agent counts as
+  having reported at the first stamp of the herd, so the clock waits up to ``stale_after``
+  for late starters. :meth:`HerdClock.flush` emits the remaining ticks at the end of data.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from herd_ros.ingest.collar_filter import CollarFilter, predict_state
+from herd_ros.trajectory import HerdTrajectory
+
+
+def first_tick_index(t: float, dt: float) -> int:
+    """Index k of the first tick ``k·dt`` at or after ``t``."""
+    k = math.ceil(t / dt)
+    # guard against t/dt rounding: k*dt must be >= t and (k-1)*dt < t
+    if k * dt < t:
+        k += 1
+    elif (k - 1) * dt >= t:
+        k -= 1
+    return int(k)
+
+
+def tick_grid(t_first: float, t_last: float, dt: float) -> np.ndarray:
+    """The ticks ``k·dt`` with ``t_first ≤ k·dt ≤ t_last`` (s)."""
+    k0 = first_tick_index(t_first, dt)
+    k1 = first_tick_index(t_last, dt)
+    if k1 * dt > t_last:
+        k1 -= 1
+    return np.arange(k0, k1 + 1, dtype=float) * dt
+
+
+@dataclass
+class StateTimeline:
+    """The states of one collar filter after each accepted fix (or re-initialisation).
+
+    Attributes:
+        t: (K,) data times (s), increasing.
+        x: (K, 4) states [e, n, ve, vn].
+        P: (K, 4, 4) covariances.
+        accel_std: the filter's process noise (m/s²), used to predict to the ticks.
+        stale_after: the filter's staleness horizon (s).
+        segment: (K,) int, which (re)initialisation each state descends from; consecutive
+            states of one segment are one Kalman predict/update apart (what RTS needs).
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    P: np.ndarray
+    accel_std: float
+    stale_after: float
+    segment: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.segment is None:
+            self.segment = np.zeros(len(self.t), dtype=int)
+
+    def at(self, ticks):
+        """Causal estimates at ``ticks`` (T,): (x (T, 4), P (T, 4, 4), stale (T,),
+        initialised (T,)). Ticks before the first state give NaN, stale and not initialised.
+        """
+        ticks = np.asarray(ticks, dtype=float)
+        idx = np.searchsorted(self.t, ticks, side='right') - 1
+        initialised = idx >= 0
+        safe = np.where(initialised, idx, 0)
+        if len(self.t) == 0:
+            n = len(ticks)
+            return (np.full((n, 4), np.nan), np.full((n, 4, 4), np.nan),
+                    np.ones(n, bool), np.zeros(n, bool))
+        tau = ticks - self.t[safe]
+        x, P = predict_state(self.x[safe], self.P[safe], tau, self.accel_std)
+        x[~initialised] = np.nan
+        P[~initialised] = np.nan
+        stale = ~initialised | (tau > self.stale_after)
+        return x, P, stale, initialised
+
+
+class TimelineRecorder:
+    """Appends a filter's state to a growing timeline whenever it accepted a fix."""
+
+    def __init__(self, collar_filter: CollarFilter):
+        self.filter = collar_filter
+        self._accepted = collar_filter.counters['accepted']
+        self.t: list[float] = []
+        self.x: list[np.ndarray] = []
+        self.P: list[np.ndarray] = []
+        self.segment: list[int] = []
+
+    def record(self) -> bool:
+        """Record the filter's state if it changed since the last call; True if it did."""
+        accepted = self.filter.counters['accepted']
+        if accepted == self._accepted:
+            return False
+        self._accepted = accepted
+        self.t.append(self.filter.t)
+        self.x.append(self.filter.x.copy())
+        self.P.append(self.filter.P.copy())
+        self.segment.append(self.filter.counters['reinitialised'])
+        return True
+
+    def timeline(self) -> StateTimeline:
+        p = self.filter.params
+        return StateTimeline(np.asarray(self.t, dtype=float),
+                             np.asarray(self.x, dtype=float).reshape(-1, 4),
+                             np.asarray(self.P, dtype=float).reshape(-1, 4, 4),
+                             p.accel_std, p.stale_after,
+                             np.asarray(self.segment, dtype=int))
+
+
+def resample_timelines(timelines: dict[str, StateTimeline], ticks, agents=None
+                       ) -> HerdTrajectory:
+    """Offline: every agent's causal estimate at every tick, as a :class:`HerdTrajectory`.
+
+    ``meta`` holds ``velocities`` (T, N, 2) m/s, ``position_cov`` (T, N, 2, 2) m²,
+    ``state_cov`` (T, N, 4, 4), ``stale`` (T, N) and ``initialised`` (T, N) booleans.
+    Positions of agents without any accepted fix at or before a tick are NaN.
+    """
+    agents = list(timelines) if agents is None else list(agents)
+    ticks = np.asarray(ticks, dtype=float)
+    T, N = len(ticks), len(agents)
+    x = np.full((T, N, 4), np.nan)
+    P = np.full((T, N, 4, 4), np.nan)
+    stale = np.ones((T, N), bool)
+    init = np.zeros((T, N), bool)
+    for i, agent in enumerate(agents):
+        x[:, i], P[:, i], stale[:, i], init[:, i] = timelines[agent].at(ticks)
+    return HerdTrajectory(ticks, agents, x[..., :2].copy(), meta={
+        'velocities': x[..., 2:].copy(), 'position_cov': P[..., :2, :2].copy(),
+        'state_cov': P, 'stale': stale, 'initialised': init})
+
+
+@dataclass
+class HerdSnapshot:
+    """All agents at one tick of the herd clock (the content of ``/herd/poses``).
+
+    Attributes:
+        time: the tick (s, data time).
+        agents: agent ids, in order.
+        positions: (N, 2) m; NaN for an agent never initialised.
+        velocities: (N, 2) m/s.
+        position_cov: (N, 2, 2) m².
+        stale: (N,) the agent carries a prediction older than ``stale_after``.
+        initialised: (N,) the agent has an accepted fix at or before the tick.
+    """
+
+    time: float
+    agents: list[str]
+    positions: np.ndarray
+    velocities: np.ndarray
+    position_cov: np.ndarray
+    stale: np.ndarray
+    initialised: np.ndarray
+
+
+@dataclass
+class _AgentRecords:
+    recorder: TimelineRecorder
+    reported: float = -math.inf       # latest stamp of any fix from this agent
+    start: int = 0                    # first record that may still be needed
+
+
+class HerdClock:
+    """Streaming herd clock: feed fixes one at a time, collect the snapshots it completes.
+
+    Usage (a node's fix callback)::
+
+        result = filters[agent].update(stamp, e, n, ...)
+        for snap in clock.observe(agent, stamp, filters[agent]):
+            publish(snap)
+
+    Args:
+        agents: the agent ids, in snapshot order.
+        dt: clock step (s).
+        stale_after: seconds of herd data time after which a silent agent no longer holds
+            the clock back (and after which an agent's estimate is flagged stale).
+    """
+
+    def __init__(self, agents, dt: float, stale_after: float):
+        if not dt > 0:
+            raise ValueError(f'dt must be positive, got {dt!r}')
+        self.agents = list(agents)
+        self.dt = float(dt)
+        self.stale_after = float(stale_after)
+        self._agents: dict[str, _AgentRecords] = {}
+        self.herd_time = -math.inf
+        self._next_k: int | None = None
+
+    @property
+    def next_tick(self) -> float | None:
+        """The next tick to be emitted (None before the first fix)."""
+        return None if self._next_k is None else self._next_k * self.dt
+
+    def observe(self, agent: str, stamp: float, collar_filter: CollarFilter
+                ) -> list[HerdSnapshot]:
+        """Take note of one fix of ``agent`` (accepted or rejected), already processed by
+        ``collar_filter``; return the snapshots completed by it (oldest first)."""
+        if agent not in self.agents:
+            raise KeyError(f'unknown agent {agent!r}')
+        rec = self._agents.get(agent)
+        if rec is None or rec.recorder.filter is not collar_filter:
+            rec = self._agents[agent] = _AgentRecords(TimelineRecorder(collar_filter),
+                                                      rec.reported if rec else -math.inf)
+            if collar_filter.initialised:   # a filter that ran before it was registered
+                rec.recorder._accepted = -1
+        rec.recorder.record()
+        stamp = float(stamp)
+        if not math.isfinite(stamp):
+            return []
+        if self._next_k is None:
+            self._next_k = first_tick_index(stamp, self.dt)
+            self._first_stamp = stamp
+        rec.reported = max(rec.reported, stamp)
+        self.herd_time = max(self.herd_time, stamp)
+        return self._emit(final=False)
+
+    def flush(self) -> list[HerdSnapshot]:
+        """End of data: emit every remaining tick up to the latest stamp seen."""
+        return self._emit(final=True)
+
+    # -- internals ------------------------------------------------------------------------
+    def _ready(self, tick: float) -> bool:
+        if tick > self.herd_time:
+            return False
+        for agent in self.agents:
+            rec = self._agents.get(agent)
+            reported = rec.reported if rec is not None else -math.inf
+            if reported >= tick:
+                continue
+            silent = self.herd_time - max(reported, self._first_stamp) > self.stale_after
+            if not (silent and tick < self.herd_time):
+                return False
+        return True
+
+    def _emit(self, final: bool) -> list[HerdSnapshot]:
+        out = []
+        if self._next_k is None:
+            return out
+        while True:
+            tick = self._next_k * self.dt
+            if tick > self.herd_time or not (final or self._ready(tick)):
+                break
+            out.append(self._snapshot(tick))
+            self._next_k += 1
+        return out
+
+    def _snapshot(self, tick: float) -> HerdSnapshot:
+        N = len(self.agents)
+        x = np.full((N, 4), np.nan)
+        P = np.full((N, 4, 4), np.nan)
+        stale = np.ones(N, bool)
+        init = np.zeros(N, bool)
+        for i, agent in enumerate(self.agents):
+            rec = self._agents.get(agent)
+            if rec is None:
+                continue
+            r = rec.recorder
+            # drop records superseded by a later one still at or before this tick
+            while rec.start + 1 < len(r.t) and r.t[rec.start + 1] <= tick:
+                rec.start += 1
+            if rec.start > 1024:   # keep the lists short on long runs
+                del r.t[:rec.start], r.x[:rec.start], r.P[:rec.start], r.segment[:rec.start]
+                rec.start = 0
+            if rec.start < len(r.t) and r.t[rec.start] <= tick:
+                p = r.filter.params
+                tau = tick - r.t[rec.start]
+                x[i], P[i] = predict_state(r.x[rec.start], r.P[rec.start], tau, p.accel_std)
+                init[i] = True
+                stale[i] = tau > p.stale_after
+        return HerdSnapshot(tick, list(self.agents), x[:, :2].copy(), x[:, 2:].copy(),
+                            P[:, :2, :2].copy(), stale, init)

@@ -1,0 +1,241 @@
+"""Readers of GPS fix files into one *fixes table* (a pandas DataFrame).
+
+The fixes table has one row per fix and the columns :data:`FIX_COLUMNS`:
+
+=========================== ======================================================
+``time``                    epoch seconds (UTC), float
+``agent``                   collar / animal id, str
+``lat``, ``lon``            WGS84 degrees (NaN for a row without a position)
+``alt``                     metres above the ellipsoid, NaN when unknown
+``status``                  NavSatStatus.status (0 = FIX, -1 = NO_FIX)
+``position_covariance_type`` NavSatFix covariance type (0 = UNKNOWN)
+``cov_ee, cov_en, cov_nn``  E/N block of ``position_covariance`` (m²), NaN if unknown
+=========================== ======================================================
+
+Formats:
+
+* **GPS CSV** (DESIGN.md): header ``time,agent,lat,lon`` with optional ``alt`` (and the other
+  columns above); ``time`` in epoch seconds or ISO-8601 (naive times are taken as UTC).
+* **Movebank CSV**: ``timestamp`` (UTC, ``YYYY-MM-DD HH:MM:SS[.fff]``), ``location-long``,
+  ``location-lat``, ``individual-local-identifier``; ``height-above-ellipsoid`` if present.
+  Rows without a location stay in the table with NaN lat/lon (the filter counts them).
+* **GPX** 1.0/1.1: every ``trk`` is one agent, named by its ``<name>`` or else by the file
+  name (``<stem>`` or ``<stem>_<k>`` for several tracks); ``trkpt`` lat/lon, ``ele``, ``time``.
+
+Errors raise :class:`herd_ros.errors.HerdInputError` naming the file, line and field.
+"""
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from herd_ros.errors import HerdInputError
+
+FIX_COLUMNS = ('time', 'agent', 'lat', 'lon', 'alt', 'status', 'position_covariance_type',
+               'cov_ee', 'cov_en', 'cov_nn')
+MOVEBANK_COLUMNS = ('timestamp', 'location-long', 'location-lat',
+                    'individual-local-identifier')
+
+
+def normalise_fixes(df: pd.DataFrame) -> pd.DataFrame:
+    """Add the optional columns with their defaults and fix the dtypes."""
+    out = df.copy()
+    defaults = {'alt': np.nan, 'status': 0, 'position_covariance_type': 0,
+                'cov_ee': np.nan, 'cov_en': np.nan, 'cov_nn': np.nan}
+    for col, value in defaults.items():
+        if col not in out.columns:
+            out[col] = value
+    out['agent'] = out['agent'].astype(str)
+    for col in ('time', 'lat', 'lon', 'alt', 'cov_ee', 'cov_en', 'cov_nn'):
+        out[col] = out[col].astype(float)
+    for col in ('status', 'position_covariance_type'):
+        out[col] = out[col].fillna(0).astype(int)
+    cols = list(FIX_COLUMNS) + [c for c in out.columns if c not in FIX_COLUMNS]
+    return out[cols].reset_index(drop=True)
+
+
+def _fail(path, msg):
+    raise HerdInputError(f'{path}: {msg}')
+
+
+def _read_csv(path) -> pd.DataFrame:
+    path = Path(path)
+    if not path.is_file():
+        _fail(path, 'no such file')
+    try:
+        df = pd.read_csv(path, dtype=str, skipinitialspace=True, keep_default_na=True)
+    except Exception as exc:
+        _fail(path, f'not a readable CSV ({exc.__class__.__name__}: {exc})'.splitlines()[0])
+    df.columns = [str(c).strip() for c in df.columns]
+    if len(df) == 0:
+        _fail(path, 'no data rows')
+    return df
+
+
+def _numeric(path, df, col, *, allow_nan: bool, out_name: str | None = None):
+    """Column ``col`` as floats; a non-number (or NaN when not allowed) names its line."""
+    raw = df[col]
+    values = pd.to_numeric(raw, errors='coerce').to_numpy(dtype=float)
+    bad = np.isnan(values) & raw.notna().to_numpy() if allow_nan else ~np.isfinite(values)
+    if allow_nan:
+        # a written value that is not a number (empty cells and 'nan' are fine)
+        text = raw.fillna('').astype(str).str.strip().str.lower()
+        bad &= ~text.isin(['', 'nan'])
+    if bad.any():
+        k = int(np.argmax(bad))
+        _fail(path, f'line {k + 2}: {out_name or col} is {raw.iloc[k]!r}, not a number')
+    return values
+
+
+def parse_times(path, raw: pd.Series, field: str = 'time') -> np.ndarray:
+    """Epoch seconds from epoch numbers or ISO-8601 strings (naive = UTC)."""
+    numeric = pd.to_numeric(raw, errors='coerce')
+    values = numeric.to_numpy(dtype=float, copy=True)
+    text = ~numeric.notna().to_numpy()
+    if text.any():
+        # ISO-8601 element by element, so one bad cell is named, not the whole column
+        stamps = pd.to_datetime(raw[text], utc=True, errors='coerce', format='ISO8601')
+        seconds = (stamps - pd.Timestamp('1970-01-01', tz='UTC')).dt.total_seconds()
+        values[text] = seconds.to_numpy(dtype=float)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        k = int(np.argmax(bad))
+        _fail(path, f'line {k + 2}: {field} is {raw.iloc[k]!r}, neither epoch seconds nor '
+                    f'an ISO-8601 time')
+    bad = ~np.isfinite(values)
+    if bad.any():
+        k = int(np.argmax(bad))
+        _fail(path, f'line {k + 2}: {field} is {raw.iloc[k]!r}, not a time')
+    return values
+
+
+def read_gps_csv(path) -> pd.DataFrame:
+    """A GPS CSV (``time,agent,lat,lon[,alt]``) as a fixes table."""
+    df = _read_csv(path)
+    missing = [c for c in ('time', 'agent', 'lat', 'lon') if c not in df.columns]
+    if missing:
+        _fail(path, f'missing column(s) {", ".join(missing)}; a GPS CSV needs the header '
+                    f'time,agent,lat,lon[,alt] (got {",".join(df.columns)})')
+    empty = df['agent'].isna().to_numpy()
+    if empty.any():
+        _fail(path, f'line {int(np.argmax(empty)) + 2}: empty agent')
+    out = pd.DataFrame({'time': parse_times(path, df['time']), 'agent': df['agent'].str.strip()})
+    for col in ('lat', 'lon'):
+        out[col] = _numeric(path, df, col, allow_nan=True)
+    _check_ranges(path, out)
+    for col in ('alt', 'cov_ee', 'cov_en', 'cov_nn', 'status', 'position_covariance_type'):
+        if col in df.columns:
+            out[col] = _numeric(path, df, col, allow_nan=True)
+    return normalise_fixes(out)
+
+
+def _check_ranges(path, out, lat='lat', lon='lon'):
+    for col, name, limit in (('lat', lat, 90.0), ('lon', lon, 180.0)):
+        v = out[col].to_numpy()
+        bad = np.abs(v) > limit
+        if bad.any():
+            k = int(np.argmax(bad))
+            _fail(path, f'line {k + 2}: {name} is {v[k]!r}, outside ±{limit:g} degrees')
+
+
+def read_movebank_csv(path) -> pd.DataFrame:
+    """A Movebank export (``timestamp, location-long, location-lat,
+    individual-local-identifier``) as a fixes table."""
+    df = _read_csv(path)
+    missing = [c for c in MOVEBANK_COLUMNS if c not in df.columns]
+    if missing:
+        _fail(path, f'missing Movebank column(s) {", ".join(missing)}')
+    empty = df['individual-local-identifier'].isna().to_numpy()
+    if empty.any():
+        _fail(path, f'line {int(np.argmax(empty)) + 2}: empty individual-local-identifier')
+    out = pd.DataFrame({'time': parse_times(path, df['timestamp'], 'timestamp'),
+                        'agent': df['individual-local-identifier'].str.strip()})
+    out['lat'] = _numeric(path, df, 'location-lat', allow_nan=True)
+    out['lon'] = _numeric(path, df, 'location-long', allow_nan=True)
+    _check_ranges(path, out, 'location-lat', 'location-long')
+    if 'height-above-ellipsoid' in df.columns:
+        out['alt'] = _numeric(path, df, 'height-above-ellipsoid', allow_nan=True)
+    return normalise_fixes(out)
+
+
+def read_gpx(path) -> pd.DataFrame:
+    """GPX tracks as a fixes table (one agent per ``trk``)."""
+    path = Path(path)
+    if not path.is_file():
+        _fail(path, 'no such file')
+    try:
+        tree = ET.parse(path)
+    except ET.ParseError as exc:
+        _fail(path, f'not valid XML ({exc})')
+    root = tree.getroot()
+    ns = root.tag[1:root.tag.index('}')] if root.tag.startswith('{') else ''
+    q = (lambda tag: f'{{{ns}}}{tag}') if ns else (lambda tag: tag)
+    if root.tag != q('gpx'):
+        _fail(path, f'root element is {root.tag!r}, not gpx')
+    tracks = root.findall(q('trk'))
+    if not tracks:
+        _fail(path, 'no <trk> track in the GPX file')
+    rows = []
+    for k, trk in enumerate(tracks):
+        name = (trk.findtext(q('name')) or '').strip()
+        if not name:
+            name = path.stem if len(tracks) == 1 else f'{path.stem}_{k + 1}'
+        for j, pt in enumerate(trk.iter(q('trkpt'))):
+            where = f'track {name!r} point {j + 1}'
+            try:
+                lat, lon = float(pt.attrib['lat']), float(pt.attrib['lon'])
+            except (KeyError, ValueError):
+                _fail(path, f'{where}: lat/lon attribute missing or not a number')
+            ele = pt.findtext(q('ele'))
+            time = pt.findtext(q('time'))
+            if time is None:
+                _fail(path, f'{where}: no <time>')
+            rows.append((time.strip(), name, lat, lon,
+                         float(ele) if ele not in (None, '') else np.nan))
+    if not rows:
+        _fail(path, 'no <trkpt> points in the GPX tracks')
+    raw = pd.DataFrame(rows, columns=['time', 'agent', 'lat', 'lon', 'alt'])
+    out = raw.copy()
+    try:
+        stamps = pd.to_datetime(raw['time'], utc=True, format='ISO8601')
+    except (ValueError, TypeError):
+        _fail(path, 'a <time> is not ISO-8601')
+    out['time'] = (stamps - pd.Timestamp('1970-01-01', tz='UTC')).dt.total_seconds()
+    _check_ranges(path, out)
+    return normalise_fixes(out)
+
+
+def sniff_format(path) -> str:
+    """``'bag'``, ``'gpx'``, ``'movebank'`` or ``'gps'`` from the file name and header."""
+    path = Path(path)
+    if path.is_dir() or path.suffix.lower() in ('.mcap', '.db3'):
+        return 'bag'
+    if path.suffix.lower() == '.gpx':
+        return 'gpx'
+    if not path.is_file():
+        _fail(path, 'no such file or bag')
+    with open(path, encoding='utf-8', errors='replace') as fh:
+        head = fh.readline()
+    if head.lstrip().startswith('<'):
+        return 'gpx'
+    cols = {c.strip().strip('"') for c in head.strip().split(',')}
+    if {'location-long', 'location-lat'} <= cols:
+        return 'movebank'
+    if {'time', 'agent', 'lat', 'lon'} <= cols:
+        return 'gps'
+    _fail(path, f'cannot tell the format: header {head.strip()[:80]!r} is neither a GPS CSV '
+                f'(time,agent,lat,lon[,alt]) nor a Movebank CSV')
+
+
+READERS = {'gps': read_gps_csv, 'movebank': read_movebank_csv, 'gpx': read_gpx}
+
+
+def read_fix_file(path, fmt: str = 'auto') -> pd.DataFrame:
+    """Read a GPS CSV, Movebank CSV or GPX file (``fmt`` 'auto' sniffs it)."""
+    fmt = sniff_format(path) if fmt == 'auto' else fmt
+    if fmt not in READERS:
+        _fail(path, f'format {fmt!r} is not one of gps, movebank, gpx')
+    return READERS[fmt](path)

@@ -1,0 +1,37 @@
+"""Batch fit time of the herd model (issue: offline identification, acceptance 5).
+
+Cases: 3 agents × 3 100 steps, and 10 agents × 259 200 steps (3 days at 1 Hz), 8x8 grid.
+Data: a known-truth herd (herd_ros.synthesis.known_truth). Times the fit only (regressors,
+structured QR, sandwich errors), not the simulation. Prints medians over repeats.
+
+    .venv/bin/python test/bench/bench_fit.py
+"""
+import statistics
+import time
+
+from herd_ros.estimation.herd_fit import fit_herd
+from herd_ros.simulation.herd_simulator import simulate
+from herd_ros.synthesis.known_truth import initial_positions, make_truth_model
+
+CASES = [(3, 3100, 7), (10, 259_200, 3)]
+
+
+def main():
+    print(f'{"agents":>6} {"steps":>8} {"params/agent":>12} {"median fit (s)":>15} '
+          f'{"min (s)":>8} {"repeats":>7}')
+    for n, steps, repeats in CASES:
+        truth = make_truth_model(n, seed=0, grid=(8, 8), bounds=(-75, 75, -75, 75))
+        run = simulate(truth, steps, initial_positions(truth, seed=0, spread=25), seed=1)
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fit = fit_herd([run], grid=(8, 8), bounds=(-75, 75, -75, 75))
+            times.append(time.perf_counter() - t0)
+        p = len(fit.model.laws[truth.agents[0]].theta)
+        print(f'{n:>6} {steps:>8} {p:>12} {statistics.median(times):>15.3f} '
+              f'{min(times):>8.3f} {repeats:>7}', flush=True)
+    print('reproduce: make bench  (or .venv/bin/python test/bench/bench_fit.py)')
+
+
+if __name__ == '__main__':
+    main()

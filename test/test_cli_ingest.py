@@ -1,0 +1,87 @@
+"""`herd-ros ingest`, `import` and `bag-info` in process, on small generated data."""
+import numpy as np
+import pandas as pd
+import pytest
+
+from herd_ros.cli.main import main
+from herd_ros.ingest.geodesy import enu_to_geodetic
+from herd_ros.trajectory import read_trajectory_csv
+
+DATUM = (27.0153, -108.7937, 100.0)
+
+
+@pytest.fixture
+def gps_csv(tmp_path):
+    rng = np.random.default_rng(0)
+    rows = []
+    for i in range(3):
+        t = 1.7e9 + np.arange(300) + rng.uniform(0, 0.3, 300)
+        e = 20 * i + 0.1 * np.arange(300) + rng.normal(0, 2, 300)
+        n = -10 * i + rng.normal(0, 2, 300)
+        lat, lon, _ = enu_to_geodetic(e, n, 0.0, *DATUM)
+        alt = np.where(rng.random(300) < 0.2, np.nan, 100.0)
+        rows.append(pd.DataFrame({'time': t, 'agent': f'cow_{i}', 'lat': lat, 'lon': lon,
+                                  'alt': alt}))
+    path = tmp_path / 'fixes.csv'
+    pd.concat(rows).sort_values('time').to_csv(path, index=False, float_format='%.10f')
+    return path
+
+
+@pytest.mark.parametrize('smoother', ['none', 'rts', 'fir'])
+def test_ingest_gps_csv(gps_csv, tmp_path, capsys, smoother):
+    out = tmp_path / f'traj_{smoother}.csv'
+    rc = main(['ingest', str(gps_csv), '-o', str(out), '--dt', '2', '--smoother', smoother,
+               '--datum', ','.join(map(str, DATUM))])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert 'datum: lat 27.015300000 lon -108.793700000' in text and 'cow_2' in text
+    (traj,) = read_trajectory_csv(out)           # uniform, complete: what `fit` needs
+    assert traj.agents == ['cow_0', 'cow_1', 'cow_2'] and traj.dt == pytest.approx(2.0)
+    assert traj.n_steps > 140
+    # cow_1 walks east at 0.1 m/s from x = 20, y = -10
+    t_rel = traj.times - 1.7e9
+    tol = 3.0 if smoother != 'fir' else 4.0
+    assert np.max(np.abs(traj.positions[20:, 1, 1] + 10)) < tol
+    assert np.max(np.abs(traj.positions[20:, 1, 0] - (20 + 0.1 * t_rel[20:]))) < tol
+
+
+def test_import_bag_info_and_ingest_bag(gps_csv, tmp_path, capsys):
+    bag = tmp_path / 'cows_bag'
+    assert main(['import', str(gps_csv), '-o', str(bag)]) == 0
+    text = capsys.readouterr().out
+    assert 'read 900 fixes of 3 agents (gps)' in text and '/herd/cow_0/fix' in text
+    assert main(['bag-info', str(bag)]) == 0
+    text = capsys.readouterr().out
+    assert 'storage:  mcap' in text and 'messages: 900' in text
+    out_bag, out_csv = tmp_path / 'a.csv', tmp_path / 'b.csv'
+    assert main(['ingest', str(bag), '-o', str(out_bag), '--dt', '1']) == 0
+    assert main(['ingest', str(gps_csv), '-o', str(out_csv), '--dt', '1']) == 0
+    capsys.readouterr()
+    (a,), (b,) = read_trajectory_csv(out_bag), read_trajectory_csv(out_csv)
+    np.testing.assert_allclose(a.positions, b.positions, atol=1e-3)   # CSV rounding only
+    sq = tmp_path / 'sq_bag'
+    assert main(['import', str(gps_csv), '-o', str(sq), '--storage', 'sqlite3']) == 0
+    assert main(['bag-info', str(sq)]) == 0
+    assert 'storage:  sqlite3' in capsys.readouterr().out
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['ingest', '{missing}', '-o', '{out}', '--dt', '1'], 'no such file'),
+    (['ingest', '{bad}', '-o', '{out}', '--dt', '1'], 'line 3: lat'),
+    (['ingest', '{good}', '-o', '{out}', '--dt', '-1'], 'dt must be a positive'),
+    (['ingest', '{good}', '-o', '{out}', '--dt', '1', '--datum', '1'], '--datum'),
+    (['ingest', '{good}', '-o', '{out}', '--dt', '1', '--gate-probability', '2'],
+     'gate_probability'),
+    (['import', '{bad}', '-o', '{outbag}'], 'line 3: lat'),
+    (['bag-info', '{missing}'], 'no such bag'),
+])
+def test_bad_input_exits_2_with_one_line(tmp_path, gps_csv, capsys, argv, message):
+    bad = tmp_path / 'bad.csv'
+    bad.write_text('time,agent,lat,lon\n1,a,46,7\n2,a,?,7\n')
+    paths = {'missing': tmp_path / 'missing.csv', 'bad': bad, 'good': gps_csv,
+             'out': tmp_path / 'o.csv', 'outbag': tmp_path / 'ob'}
+    rc = main([a.format(**{k: str(v) for k, v in paths.items()}) for a in argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2
+    assert len(err) == 1 and err[0].startswith(f'herd-ros {argv[0]}: error:')
+    assert message in err[0]

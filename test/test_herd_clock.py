@@ -1,0 +1,182 @@
+"""The herd clock: uniform ticks in data time; offline and streaming give the same snapshots."""
+import numpy as np
+import pytest
+
+from herd_ros.ingest.collar_filter import CollarFilter, FilterParams
+from herd_ros.ingest.herd_clock import (HerdClock, TimelineRecorder, resample_timelines,
+                                        tick_grid)
+from herd_ros.ingest.smoothing import gaussian_fir, gaussian_fir_taps, rts_on_ticks
+
+AGENTS = ['a', 'b', 'c']
+PARAMS = FilterParams(accel_std=0.1, stale_after=20.0)
+
+
+def test_tick_grid_is_multiples_of_dt():
+    ticks = tick_grid(1000.3, 1010.0, 2.5)
+    np.testing.assert_allclose(ticks, [1002.5, 1005.0, 1007.5, 1010.0])
+    assert tick_grid(0.1, 0.2, 1.0).size == 0
+    np.testing.assert_allclose(np.diff(tick_grid(1.7e9 + 0.1, 1.7e9 + 3600, 0.2)), 0.2,
+                               atol=1e-6)
+
+
+def herd_fixes(seed=0):
+    """Irregular stamps, a late starter (c), a dropout of b (stale), jumps, NO_FIX, NaN."""
+    rng = np.random.default_rng(seed)
+    fixes = []
+    for i, agent in enumerate(AGENTS):
+        t = 1000.0 + (15.0 if agent == 'c' else 0.0) + np.cumsum(rng.uniform(0.3, 2.0, 150))
+        if agent == 'b':
+            t = t[(t < 1060) | (t > 1120)]                 # 60 s silence > stale_after
+        p = np.c_[10 * i + 0.2 * (t - 1000), 0.1 * (t - 1000)]
+        z = p + rng.normal(0, 2.0, p.shape)
+        status = np.zeros(len(t), int)
+        jumps = rng.random(len(t)) < 0.05
+        jumps[:3] = False
+        z[jumps] += 60.0
+        status[rng.random(len(t)) < 0.03] = -1
+        z[rng.random(len(t)) < 0.03] = np.nan
+        fixes += [(t[k], agent, z[k, 0], z[k, 1], status[k]) for k in range(len(t))]
+    fixes.sort(key=lambda f: f[0])                        # arrival order = stamp order
+    return fixes
+
+
+def offline(fixes, dt):
+    recs = {}
+    for agent in AGENTS:
+        f = CollarFilter(PARAMS)
+        rec = TimelineRecorder(f)
+        for t, a, e, n, s in fixes:
+            if a == agent:
+                f.update(t, e, n, status=s)
+                rec.record()
+        recs[agent] = rec.timeline()
+    stamps = [f[0] for f in fixes]
+    return resample_timelines(recs, tick_grid(min(stamps), max(stamps), dt), AGENTS), recs
+
+
+def streaming(fixes, dt):
+    filters = {a: CollarFilter(PARAMS) for a in AGENTS}
+    clock = HerdClock(AGENTS, dt, PARAMS.stale_after)
+    snaps, emitted_at = [], []
+    for t, a, e, n, s in fixes:
+        filters[a].update(t, e, n, status=s)
+        new = clock.observe(a, t, filters[a])
+        snaps += new
+        emitted_at += [t] * len(new)
+    snaps += clock.flush()
+    return snaps, emitted_at
+
+
+@pytest.mark.parametrize('dt', [1.0, 2.5])
+def test_offline_equals_streaming(dt):
+    fixes = herd_fixes()
+    traj, _ = offline(fixes, dt)
+    snaps, emitted_at = streaming(fixes, dt)
+    assert len(snaps) == len(traj.times)
+    np.testing.assert_array_equal([s.time for s in snaps], traj.times)
+    pos = np.array([s.positions for s in snaps])
+    np.testing.assert_allclose(pos, traj.positions, atol=1e-9, equal_nan=True)
+    np.testing.assert_allclose(np.array([s.position_cov for s in snaps]),
+                               traj.meta['position_cov'], atol=1e-9, equal_nan=True)
+    np.testing.assert_array_equal(np.array([s.stale for s in snaps]), traj.meta['stale'])
+    np.testing.assert_array_equal(np.array([s.initialised for s in snaps]),
+                                  traj.meta['initialised'])
+    # the dropout of b shows as stale ticks, and only there
+    b_stale = traj.meta['stale'][:, 1] & traj.meta['initialised'][:, 1]
+    assert b_stale.any()
+    b_last = max(t for t, a, *_ in fixes if a == 'b')
+    in_gap = (traj.times > 1060 + PARAMS.stale_after - 2.5) & (traj.times <= 1120 + 2.5)
+    after_end = traj.times > b_last + PARAMS.stale_after - 2.5
+    assert np.all((in_gap | after_end)[b_stale])
+    assert b_stale[in_gap & (traj.times > 1060 + PARAMS.stale_after + 2.5)
+                   & (traj.times < 1118)].all()
+    # c starts late: not initialised at the first ticks, then always
+    assert not traj.meta['initialised'][0, 2] and traj.meta['initialised'][-1, 2]
+    # snapshots are emitted in data time, never before their tick
+    assert all(at >= s.time for at, s in zip(emitted_at, snaps))
+
+
+def test_snapshot_waits_for_every_agent_or_staleness():
+    clock = HerdClock(['a', 'b'], 1.0, stale_after=10.0)
+    fa, fb = CollarFilter(PARAMS), CollarFilter(PARAMS)
+    fa.update(0.0, 0.0, 0.0)
+    fb.update(0.0, 5.0, 0.0)
+    assert [s.time for s in clock.observe('a', 0.0, fa)] == []       # b has not spoken
+    assert [s.time for s in clock.observe('b', 0.0, fb)] == [0.0]
+    out = []
+    for k in range(1, 11):                                  # only a keeps reporting
+        fa.update(float(k), 0.0, 0.0)
+        out += clock.observe('a', float(k), fa)
+    assert out == []                                        # b is silent but not stale yet
+    fa.update(10.5, 0.0, 0.0)
+    out = clock.observe('a', 10.5, fa)
+    assert [s.time for s in out] == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0]
+    # b carries its (constant-velocity) prediction; flagged stale only beyond stale_after
+    assert out[0].positions[1] == pytest.approx([5.0, 0.0])
+    assert not out[-1].stale[1] and out[-1].position_cov[1, 0, 0] > out[0].position_cov[1, 0, 0]
+
+
+def test_causal_estimate_ignores_later_fixes():
+    fixes = herd_fixes(seed=3)
+    traj, _ = offline(fixes, 1.0)
+    cut = 1100.0
+    later = [(t, a, e + 30.0 if t > cut else e, n, s) for t, a, e, n, s in fixes]
+    traj2, _ = offline(later, 1.0)
+    before = traj.times <= cut
+    np.testing.assert_allclose(traj2.positions[before], traj.positions[before], atol=1e-12,
+                               equal_nan=True)
+
+
+def test_stationary_exact_fixes_give_the_position_at_every_tick():
+    f = CollarFilter(PARAMS, position_std_floor=0.01)
+    rec = TimelineRecorder(f)
+    cov = np.zeros(9)
+    for t in np.arange(0.0, 20.0, 0.7):
+        f.update(t, 3.0, -4.0, position_covariance=cov, position_covariance_type=3)
+        rec.record()
+    traj = resample_timelines({'a': rec.timeline()}, tick_grid(0.0, 19.6, 1.0))
+    np.testing.assert_allclose(traj.positions[:, 0], np.tile([3.0, -4.0], (20, 1)), atol=1e-6)
+    x, _ = rts_on_ticks(rec.timeline(), traj.times)
+    np.testing.assert_allclose(x[:, :2], np.tile([3.0, -4.0], (20, 1)), atol=1e-6)
+
+
+def test_rts_on_ticks_at_fix_times_equals_filterpy_rts():
+    """At the fixes' own times the tick smoother is filterpy's RTS (independent code path)."""
+    from filterpy.kalman import KalmanFilter
+    from herd_ros.ingest.collar_filter import process_noise, transition
+    rng = np.random.default_rng(4)
+    f = CollarFilter(PARAMS)
+    rec = TimelineRecorder(f)
+    t = np.cumsum(rng.uniform(0.5, 1.5, 60))
+    for tk in t:
+        f.update(tk, *(rng.normal(0, 2, 2) + [0.3 * tk, 0]))
+        rec.record()
+    tl = rec.timeline()
+    tau = np.concatenate([[0], np.diff(tl.t)])
+    xs, Ps, _, _ = KalmanFilter(4, 2).rts_smoother(tl.x, tl.P, transition(tau),
+                                                   process_noise(tau, PARAMS.accel_std))
+    x, P = rts_on_ticks(tl, tl.t)
+    np.testing.assert_allclose(x, xs, atol=1e-9)
+    np.testing.assert_allclose(P, Ps, atol=1e-9)
+    # between fixes the smoothed covariance is no larger than the filtered prediction's
+    mid = 0.5 * (tl.t[:-1] + tl.t[1:])
+    _, Pm = rts_on_ticks(tl, mid)
+    assert np.all(np.trace(Pm[:, :2, :2], axis1=1, axis2=2) > 0)
+
+
+def test_gaussian_fir_taps_and_response():
+    b = gaussian_fir_taps()
+    assert len(b) == 30 and b.sum() == pytest.approx(1.0)
+    assert b[1] / b[0] == pytest.approx(np.exp(-1 / 72))    # exp(-j²/2σ²), σ = 6
+    assert np.all(np.diff(b) < 0)
+    # constant passes unchanged; a ramp is delayed by the group delay Σ j b_j
+    const = np.full((50, 2, 2), 7.0)
+    np.testing.assert_allclose(gaussian_fir(const), const)
+    ramp = np.arange(100.0)
+    delay = float(np.sum(np.arange(30) * b))
+    np.testing.assert_allclose(gaussian_fir(ramp)[40:], ramp[40:] - delay, atol=1e-9)
+    # causal: the output at t does not depend on the input after t
+    x = np.random.default_rng(0).normal(size=80)
+    y = x.copy()
+    y[50:] += 100
+    np.testing.assert_allclose(gaussian_fir(x)[:50], gaussian_fir(y)[:50])
