@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from herd_ros.cli.common import parse_floats, parse_grid, progress
+from herd_ros.cli.ingest import add_filter_arguments, filter_kwargs
 from herd_ros.data_sources import load_runs
 from herd_ros.estimation.herd_fit import DEFAULT_GRID, fit_herd, split_runs
 from herd_ros.estimation.validation import validate
@@ -33,8 +34,16 @@ def add_arguments(p):
     p.add_argument('--dt', type=float, help='herd clock step (s) for GPS data')
     p.add_argument('--smoother', choices=('none', 'rts', 'fir'), default='none',
                    help='offline smoothing of GPS data')
+    add_filter_arguments(p)
     p.add_argument('--report', metavar='DIR', help='write figures and summary.json here')
     p.add_argument('--seed', type=int, default=0, help='seed of the validation simulation')
+    p.add_argument('--online', action='store_true',
+                   help='recursive least squares over the whole file (the estimator node\'s '
+                        'method); also writes parameters over time to MODEL.params.csv')
+    p.add_argument('--forgetting', type=float, default=1.0,
+                   help='RLS forgetting factor λ in (0, 1] (with --online)')
+    p.add_argument('--law', choices=('pairwise', 'shared'), default='pairwise',
+                   help='interaction law (with --online): pairwise (the paper) or shared')
 
 
 def _fmt(x, nd=3):
@@ -42,9 +51,13 @@ def _fmt(x, nd=3):
 
 
 def run(args) -> int:
+    if args.online:
+        from herd_ros.cli.fit_online import run_online
+        return run_online(args)
     grid = parse_grid(args.grid)
     bounds = parse_floats(args.bounds, 4, '--bounds') if args.bounds else None
-    runs, datum = load_runs(args.data, dt=args.dt, smoother=args.smoother)
+    runs, datum = load_runs(args.data, dt=args.dt, smoother=args.smoother,
+                           **filter_kwargs(args))
     train, test = split_runs(runs, args.train_fraction)
     bar = progress(total=len(runs[0].agents), desc='fitting agents', unit='agent')
     fit = fit_herd(train, grid=grid, bounds=bounds, min_visits=args.min_visits,

@@ -30,6 +30,11 @@ def add_arguments(p):
     p.add_argument('--duration', type=float, default=3600.0, help='seconds (--scenario cows)')
     p.add_argument('--gps-out', help='with --scenario cows: also write collar fixes (GPS CSV) '
                                      'with the collar error model')
+    p.add_argument('--bag-out', help='with --scenario cows: also write the collar fixes as a '
+                                     'rosbag2 (mcap) of NavSatFix on /herd/<cow>/fix')
+    p.add_argument('--start-time', default='0',
+                   help='with --scenario cows: epoch seconds or ISO-8601 UTC of the first '
+                        'sample (sets the time of day the cows live in)')
     p.add_argument('--seed', type=int, default=0, help='random seed')
 
 
@@ -65,13 +70,32 @@ def _law(args) -> int:
 def _cows(args) -> int:
     from herd_ros.synthesis.cow_scenario import simulate_cow_herd
     traj = simulate_cow_herd(n_cows=args.agents, duration_s=args.duration, dt=args.dt,
-                             seed=args.seed)
+                             seed=args.seed, start_time=_epoch(args.start_time))
     write_trajectory_csv(args.output, traj)
     print(f'wrote {traj.n_steps} steps of {traj.n_agents} cows (dt {args.dt:g} s) to '
           f'{args.output}')
-    if args.gps_out:
+    if args.gps_out or args.bag_out:
         from herd_ros.synthesis.collar_errors import simulate_collar_fixes, write_gps_csv
         fixes = simulate_collar_fixes(traj, seed=args.seed + 1)
-        write_gps_csv(fixes, args.gps_out)
-        print(f'collar fixes (synthetic GPS errors): {args.gps_out}')
+        if args.gps_out:
+            write_gps_csv(fixes, args.gps_out)
+            print(f'collar fixes (synthetic GPS errors): {args.gps_out}')
+        if args.bag_out:
+            from herd_ros.io.bags import write_fix_bag
+            write_fix_bag(args.bag_out, fixes)
+            print(f'collar fixes as a rosbag2: {args.bag_out} ({len(fixes)} NavSatFix)')
     return 0
+
+
+def _epoch(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        pass
+    import pandas as pd
+    try:
+        return pd.Timestamp(text, tz='UTC').timestamp() if pd.Timestamp(text).tzinfo is None \
+            else pd.Timestamp(text).timestamp()
+    except ValueError:
+        raise HerdInputError(f'--start-time takes epoch seconds or ISO-8601, got {text!r}') \
+            from None

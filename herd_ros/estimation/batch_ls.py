@@ -7,13 +7,13 @@ The design Φ (2m × p) of :mod:`herd_ros.model.regressors` has the structure
 
 so its R factor is computed block-wise (never forming Φ, never an explicit inverse):
 
-1. F = Q_F R_F (thin Householder QR, LAPACK via numpy);
-2. project A_x, A_y, y_x, y_y off span(F) (Frisch–Waugh–Lovell);
-3. [A_x'; A_y'] = Q_A R_A;
-4. R = [[R_A, …], …] assembled in the order (θu, θv, θ_A), z = Qᵀ Y likewise,
+1. F = Q_F R_F (Householder QR by row blocks, TSQR, Q never formed);
+2. A_x, A_y, y_x, y_y projected off span(F) (Frisch–Waugh–Lovell) come out of the same QR;
+3. [A_x'; A_y'] = Q_A R_A from the small trailing factor;
+4. R = [[R_F, 0, B_x], [0, R_F, B_y], [0, 0, R_A]] in the order (θu, θv, θ_A), z = Qᵀ Y,
 
-which costs O(m K²) instead of the O(m (2K)²) of a dense QR, and gives the same R (up to
-row signs) as ``numpy.linalg.qr(Φ)``. θ then solves the small triangular system R θ = z.
+which costs O(m (K + 2 p_A)²) instead of the O(m (2K + p_A)²) of a dense QR of Φ, and gives
+the same R (up to row signs) as ``numpy.linalg.qr(Φ)``. θ solves the triangular R θ = z.
 
 Ridge (optional, ``ridge = λ ≥ 0``, dimensionless): minimises ‖Φθ − Y‖² + λ Σ_j ‖Φ_j‖² θ_j²,
 i.e. a penalty on each coefficient scaled by the squared norm of its column — the same as a
@@ -60,8 +60,26 @@ class LeastSquaresFit:
         return float(np.sqrt((self.residuals ** 2).sum(-1).mean()))
 
 
+def tall_r(M: np.ndarray, chunk: int = 8192) -> np.ndarray:
+    """R factor of a tall matrix by TSQR (Demmel et al. 2012): QR of row blocks, then of
+    the stacked block R's. Same R as a one-shot Householder QR (up to row signs), without
+    forming Q, and cache-friendly for millions of rows."""
+    m, n = M.shape
+    if m <= 2 * chunk:
+        return np.linalg.qr(M, mode='r')
+    blocks = [np.linalg.qr(M[k:k + chunk], mode='r') for k in range(0, m, chunk)]
+    return np.linalg.qr(np.vstack(blocks), mode='r')
+
+
 def triangular_factor(reg: AgentRegression):
-    """R (p × p, internal order θu, θv, θ_A) and z = Qᵀ Y of the structured design."""
+    """R (p × p, internal order θu, θv, θ_A) and z = Qᵀ Y of the structured design.
+
+    One TSQR of M = [F, A_x, y_x, A_y, y_y] (m rows) gives, in its first K rows, R_F and
+    Q_Fᵀ[A_x, y_x, A_y, y_y]; its trailing block T is the R factor of the same columns
+    projected off span(F). The x and y parts of T, stacked, have the R factor of the
+    projected vertical stack [[A_x', y_x'], [A_y', y_y']] (both share the orthonormal
+    basis of T), which gives R_A and z_A — exactly, without normal equations.
+    """
     F, A_x, A_y = reg.F, reg.A_x, reg.A_y
     m, K = F.shape
     pa = A_x.shape[1]
@@ -69,23 +87,29 @@ def triangular_factor(reg: AgentRegression):
         raise HerdInputError(f'agent {reg.agent}: {2 * m} equations for {pa + 2 * K} '
                              f'parameters — fewer samples than parameters (record longer, '
                              f'or use a coarser --grid)')
-    Q_F, R_F = np.linalg.qr(F, mode='reduced')
-    B_x = Q_F.T @ A_x
-    B_y = Q_F.T @ A_y
-    z_x = Q_F.T @ reg.y_x
-    z_y = Q_F.T @ reg.y_y
-    A_res = np.vstack([A_x - Q_F @ B_x, A_y - Q_F @ B_y])
-    y_res = np.concatenate([reg.y_x - Q_F @ z_x, reg.y_y - Q_F @ z_y])
-    Q_A, R_A = np.linalg.qr(A_res, mode='reduced')
-    z_A = Q_A.T @ y_res
+    M = np.hstack([F, A_x, reg.y_x[:, None], A_y, reg.y_y[:, None]])
+    Rm = tall_r(M)
+    n = Rm.shape[1]
+    if Rm.shape[0] < n:  # fewer rows than columns: pad (the design is then rank-deficient)
+        Rm = np.vstack([Rm, np.zeros((n - Rm.shape[0], n))])
+    xs = slice(K, K + pa + 1)
+    ys = slice(K + pa + 1, K + 2 * pa + 2)
+    R_F = Rm[:K, :K]
+    top_x, top_y = Rm[:K, xs], Rm[:K, ys]
+    T = Rm[K:, K:]
+    W = np.vstack([T[:, :pa + 1], T[:, pa + 1:]])
+    RW = np.linalg.qr(W, mode='r')
+    if RW.shape[0] < pa + 1:
+        RW = np.vstack([RW, np.zeros((pa + 1 - RW.shape[0], pa + 1))])
     p = 2 * K + pa
     R = np.zeros((p, p))
     R[:K, :K] = R_F
     R[K:2 * K, K:2 * K] = R_F
-    R[:K, 2 * K:] = B_x
-    R[K:2 * K, 2 * K:] = B_y
-    R[2 * K:, 2 * K:] = R_A
-    return R, np.concatenate([z_x, z_y, z_A])
+    R[:K, 2 * K:] = top_x[:, :pa]
+    R[K:2 * K, 2 * K:] = top_y[:, :pa]
+    R[2 * K:, 2 * K:] = RW[:pa, :pa]
+    z = np.concatenate([top_x[:, pa], top_y[:, pa], RW[:pa, pa]])
+    return R, z
 
 
 def _internal_to_theta_order(K: int, pa: int) -> np.ndarray:

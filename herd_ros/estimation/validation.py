@@ -64,7 +64,7 @@ def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajector
     """Every number of the fit report (see the module docstring)."""
     model = fit.model
     held_out = [r for r in test if r.n_steps >= 3]
-    evaluate_on = held_out if sum(r.n_steps for r in held_out) >= 100 else train
+    evaluate_on = held_out if sum(r.n_steps - 2 for r in held_out) >= 20 else train
     summary = {'evaluated_on': 'held-out' if evaluate_on is held_out else 'training',
                'agents': {}}
     summary['one_step_rms'] = one_step_rms(model, evaluate_on)

@@ -101,8 +101,15 @@ class RbfBasis:
     def features(self, points: np.ndarray) -> np.ndarray:
         """φ_k(p) for ``points`` (..., 2) -> (..., K) (eq. 5 basis)."""
         pts = np.asarray(points, dtype=float)
-        d2 = ((pts[..., None, :] - self.centers) ** 2).sum(-1)
-        return np.exp(-d2 / (2.0 * self.sigma ** 2)) / (self.sigma * SQRT_2PI)
+        dx = pts[..., 0, None] - self.centers[:, 0]
+        dy = pts[..., 1, None] - self.centers[:, 1]
+        dx *= dx
+        dy *= dy
+        dx += dy
+        dx *= -0.5 / self.sigma ** 2
+        np.exp(dx, out=dx)
+        dx *= 1.0 / (self.sigma * SQRT_2PI)
+        return dx
 
     @staticmethod
     def from_grid(grid: FieldGrid, visits_of: np.ndarray | None = None,

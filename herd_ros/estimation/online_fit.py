@@ -1,0 +1,531 @@
+"""Online identification of the herd model: snapshots in, RLS of every agent, model out.
+
+:class:`OnlineHerdEstimator` is the functional core of the ``estimator`` node and of
+``herd-ros fit --online``. It takes herd snapshots p^τ (N, 2) one at a time on the herd
+clock, and for every three consecutive snapshots τ, τ+1, τ+2 one step Δt apart it updates
+every agent's θ_i with the regression of eq. 8 (Schwager et al. 2007),
+
+    u_i^{τ+1} = H_i(p^τ, p^{τ+1}) θ_i + w_i^τ,   u^τ = (p^{τ+1} − p^τ)/Δt,
+
+by the batched rank-2 RLS of :mod:`herd_ros.estimation.rls` (the x and y rows of a step
+together). Two laws (``law``):
+
+- ``pairwise`` — the paper's law, the same rows as the batch fit
+  (:mod:`herd_ros.model.regressors`): θ_i = [a_i, θ1_i·, θ2_i·, θu_i·, θv_i·];
+  p = 1 + 2(N − 1) + 2K. Every row needs every neighbour, so a snapshot with any agent
+  missing updates nobody.
+- ``shared`` — :mod:`herd_ros.model.shared_law`: θ_i = [a_i, c_i1..c_iB, θu_i·, θv_i·],
+  p = 1 + B + 2K whatever N. An agent is skipped when it is missing or when an absent animal
+  was last seen within the interaction radius of it (its row would lack that neighbour).
+
+**Field centres online.** The estimator cannot prune centres before it has seen the data,
+so it estimates the coefficients of *every* centre of the fixed grid (``field_grid`` ×
+``field_bounds``); centres the herd never visits are unexcited directions, which the
+directional forgetting of the RLS leaves at their prior (θ₀ = 0, covariance p₀) instead of
+winding up. Pruning is **lazy**: the model file keeps, per agent, only the centres whose
+cell that agent visited at least ``min_visits`` times (the batch fit's rule), so exported
+fields stay bounded away from the data; the kept coefficients are re-solved with the dropped
+ones fixed at zero (:meth:`OnlineHerdEstimator.pruned_estimate`), which is exactly the
+least-squares fit on the pruned basis.
+
+**Gaps.** A snapshot whose step from the previous one is not Δt (relative tolerance 10⁻³)
+starts a new chain (no update across it); a snapshot not later than the previous one is
+ignored. NaN positions mark an agent missing or stale in that snapshot.
+
+**Diagnostics** per agent: samples, RMS of the a-priori (innovation) residual and its
+lag-1 autocorrelation r₁ (white if |r₁| < 1.96/√n, Box & Jenkins), over a window of
+about ``stats_window`` samples (exponential weighting), and the condition number of P_i.
+
+**Checkpoints**: :meth:`OnlineHerdEstimator.save_checkpoint` writes every array of the
+state into one ``.npz`` by write-then-rename (``os.replace``), so a kill at any moment leaves
+either the previous or the new checkpoint, never half a file.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from herd_ros.errors import HerdInputError
+from herd_ros.estimation.rls import HerdRLS
+from herd_ros.model.herd_model import AgentLaw, HerdModel
+from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS, FieldGrid, RbfBasis
+from herd_ros.model.shared_law import (DistanceProfile, SharedLawModel, neighbor_pairs,
+                                       shared_rows)
+
+LAWS = ('pairwise', 'shared')
+STEP_TOLERANCE = 1e-3
+
+
+# -- the regression of each law, vectorised over agents --------------------------------------
+class PairwiseRegressor:
+    """Rows of the paper's pairwise law for all agents of one step (as :mod:`regressors`)."""
+
+    law = 'pairwise'
+
+    def __init__(self, agents: list[str], basis: RbfBasis):
+        if len(agents) < 2:
+            raise HerdInputError(f'the pairwise law needs at least two agents, got {agents}')
+        self.agents, self.basis = list(agents), basis
+        n = len(agents)
+        self.n_params = 1 + 2 * (n - 1) + 2 * basis.size
+        self.field_offset = 2 * n - 1                 # index of field_u[0] in θ_i
+        self._offdiag = ~np.eye(n, dtype=bool)
+
+    def neighbors(self, i: int) -> list[str]:
+        return [a for k, a in enumerate(self.agents) if k != i]
+
+    def labels(self) -> list[str]:
+        n, K = len(self.agents), self.basis.size
+        return (['damping'] + [f'theta1_{k}' for k in range(1, n)]
+                + [f'theta2_{k}' for k in range(1, n)]
+                + [f'field_u_{k}' for k in range(K)] + [f'field_v_{k}' for k in range(K)])
+
+    def rows(self, p_prev: np.ndarray, p_cur: np.ndarray, dt: float):
+        """H (N, 2, p) and valid (N,) for the target u^{τ+1}, from p^τ and p^{τ+1}."""
+        p0 = np.asarray(p_prev, dtype=float)
+        n, K = p0.shape[0], self.basis.size
+        u = (np.asarray(p_cur, dtype=float) - p0) / dt
+        off = p0[None, :, :] - p0[:, None, :]                     # [i, j] = p_j − p_i
+        d = np.sqrt((off ** 2).sum(-1))
+        dd = d[self._offdiag].reshape(n, n - 1)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            e = off[self._offdiag].reshape(n, n - 1, 2) / dd[..., None]
+            e_over_d = e / dd[..., None]
+        H = np.zeros((n, 2, self.n_params))
+        H[:, :, 0] = u
+        H[:, :, 1:n] = np.swapaxes(e, 1, 2)
+        H[:, :, n:2 * n - 1] = -np.swapaxes(e_over_d, 1, 2)
+        phi = self.basis.features(np.nan_to_num(p0))
+        H[:, 0, 2 * n - 1:2 * n - 1 + K] = phi
+        H[:, 1, 2 * n - 1 + K:] = phi
+        valid = (np.isfinite(p0).all() & np.isfinite(u).all(axis=1) & (dd > 0).all(axis=1))
+        return H, valid
+
+    def missing_neighbors(self, missing: np.ndarray, last_seen: np.ndarray, p_prev):
+        """Agents whose row lacks a neighbour: everyone, if anyone is missing."""
+        return np.full(len(self.agents), bool(missing.any()))
+
+    def to_model(self, theta, theta_se, noise_cov, bases, dt, frame_id='map', datum=None):
+        n, K = len(self.agents), self.basis.size
+        laws = {}
+        for i, a in enumerate(self.agents):
+            th, keep = theta[i], bases[i]
+            fu, fv = th[2 * n - 1:2 * n - 1 + K][keep], th[2 * n - 1 + K:][keep]
+            se = theta_se[i]
+            se = np.concatenate([se[:2 * n - 1], se[2 * n - 1:2 * n - 1 + K][keep],
+                                 se[2 * n - 1 + K:][keep]])
+            basis = RbfBasis(self.basis.centers[keep], self.basis.sigma[keep])
+            laws[a] = AgentLaw(damping=float(th[0]), neighbors=self.neighbors(i),
+                               theta1=th[1:n], theta2=th[n:2 * n - 1], basis=basis,
+                               field_u=fu, field_v=fv, noise_cov=noise_cov[i], theta_se=se)
+        return HerdModel(agents=list(self.agents), dt=dt, laws=laws, frame_id=frame_id,
+                         datum=datum)
+
+
+class SharedRegressor:
+    """Rows of the shared law (:mod:`herd_ros.model.shared_law`) for all agents of one step."""
+
+    law = 'shared'
+
+    def __init__(self, agents: list[str], basis: RbfBasis, profile: DistanceProfile):
+        self.agents, self.basis, self.profile = list(agents), basis, profile
+        self.n_params = 1 + profile.size + 2 * basis.size
+        self.field_offset = 1 + profile.size
+
+    def labels(self) -> list[str]:
+        K = self.basis.size
+        return (['damping'] + [f'profile_{b}' for b in range(self.profile.size)]
+                + [f'field_u_{k}' for k in range(K)] + [f'field_v_{k}' for k in range(K)])
+
+    def rows(self, p_prev, p_cur, dt):
+        return shared_rows(p_prev, p_cur, dt, self.profile, self.basis)
+
+    def missing_neighbors(self, missing: np.ndarray, last_seen: np.ndarray, p_prev):
+        """Agents within the radius of an absent animal's last seen position."""
+        out = np.zeros(len(self.agents), dtype=bool)
+        gone = missing & np.isfinite(last_seen).all(axis=1)
+        if not gone.any():
+            return out
+        from scipy.spatial import cKDTree
+        ok = np.flatnonzero(np.isfinite(p_prev).all(axis=1))
+        if len(ok) == 0:
+            return out
+        hits = cKDTree(p_prev[ok]).query_ball_point(last_seen[gone], self.profile.radius)
+        for h in hits:  # one list per absent animal (few), not per agent
+            out[ok[h]] = True
+        return out
+
+    def to_model(self, theta, theta_se, noise_cov, bases, dt, frame_id='map', datum=None):
+        B, K = self.profile.size, self.basis.size
+        fu, fv, bs, se = [], [], [], []
+        for i in range(len(self.agents)):
+            keep = bases[i]
+            fu.append(theta[i, 1 + B:1 + B + K][keep])
+            fv.append(theta[i, 1 + B + K:][keep])
+            bs.append(RbfBasis(self.basis.centers[keep], self.basis.sigma[keep]))
+            s = theta_se[i]
+            se.append(np.concatenate([s[:1 + B], s[1 + B:1 + B + K][keep], s[1 + B + K:][keep]]))
+        return SharedLawModel(agents=list(self.agents), dt=dt, profile=self.profile,
+                              damping=theta[:, 0], profile_coef=theta[:, 1:1 + B], bases=bs,
+                              field_u=fu, field_v=fv, noise_cov=noise_cov, theta_se=se,
+                              frame_id=frame_id, datum=datum)
+
+
+@dataclass
+class SnapshotResult:
+    """What one snapshot did: ``status`` is 'updated', 'primed', 'gap' or 'backwards'."""
+
+    status: str
+    updated: np.ndarray | None = None      # (N,) bool
+    residual: np.ndarray | None = None     # (N, 2) a-priori residual (NaN where skipped)
+    step: float | None = None
+
+
+class OnlineHerdEstimator:
+    """Streaming identification of a herd (module docstring). Plain arrays, no ROS."""
+
+    def __init__(self, agents, dt: float, law: str = 'pairwise', field_grid=(6, 6),
+                 field_bounds=(-75.0, 75.0, -75.0, 75.0), forgetting: float = 1.0,
+                 p0=1e6, min_visits: int = DEFAULT_MIN_VISITS,
+                 interaction_radius: float = 60.0, profile_size: int = 6,
+                 stats_window: int = 500, windup: str = 'directional', basis: RbfBasis = None):
+        agents = [str(a) for a in agents]
+        if len(agents) < 1 or len(set(agents)) != len(agents):
+            raise HerdInputError(f'agents must be a non-empty list of distinct ids, got {agents}')
+        if not (np.isfinite(dt) and dt > 0):
+            raise HerdInputError(f'dt must be a positive number of seconds, got {dt}')
+        if law not in LAWS:
+            raise HerdInputError(f'law must be one of {LAWS}, got {law!r}')
+        self.agents, self.dt, self.law = agents, float(dt), law
+        self.grid = FieldGrid(int(field_grid[0]), int(field_grid[1]),
+                              tuple(float(b) for b in field_bounds))
+        self.basis = basis if basis is not None else RbfBasis.from_grid(self.grid)
+        if law == 'pairwise':
+            self.regressor = PairwiseRegressor(agents, self.basis)
+        else:
+            self.profile = DistanceProfile.even(interaction_radius, int(profile_size))
+            self.regressor = SharedRegressor(agents, self.basis, self.profile)
+        self.min_visits = int(min_visits)
+        self.stats_window = int(stats_window)
+        self.rls = HerdRLS(len(agents), self.regressor.n_params, forgetting, p0, windup=windup)
+        self.config = {'agents': agents, 'dt': self.dt, 'law': law,
+                       'n_params': self.regressor.n_params,
+                       'field_grid': [self.grid.nx, self.grid.ny],
+                       'field_bounds': list(self.grid.bounds),
+                       'interaction_radius': float(interaction_radius),
+                       'profile_size': int(profile_size)}
+        self._reset_stream()
+
+    # -- state -----------------------------------------------------------------------------
+    def _reset_stream(self):
+        n = len(self.agents)
+        self.buffer_times: list[float] = []
+        self.buffer_positions: list[np.ndarray] = []
+        self.last_seen = np.full((n, 2), np.nan)
+        self.visits = np.zeros((n, self.basis.size), dtype=np.int64)
+        self.stat_sq = np.zeros(n)          # decayed Σ ‖e‖²
+        self.stat_w = np.zeros(n)           # decayed Σ 1
+        self.stat_lag = np.zeros((n, 2))    # decayed Σ e_t e_{t−1}
+        self.stat_var = np.zeros((n, 2))    # decayed Σ e_t² (over pairs)
+        self.stat_pairs = np.zeros(n)       # decayed count of pairs
+        self.prev_residual = np.full((n, 2), np.nan)
+
+    def reset(self):
+        """Forget everything learned (θ = θ₀, P = P₀, counters and statistics zero)."""
+        self.rls.reset()
+        self._reset_stream()
+
+    def break_chain(self):
+        """The next snapshot starts a new chain (e.g. a new run)."""
+        self.buffer_times, self.buffer_positions = [], []
+        self.prev_residual[:] = np.nan
+
+    @property
+    def samples(self) -> np.ndarray:
+        return self.rls.samples
+
+    @property
+    def theta(self) -> np.ndarray:
+        return self.rls.theta
+
+    def labels(self) -> list[str]:
+        return self.regressor.labels()
+
+    # -- the stream ------------------------------------------------------------------------
+    def add_snapshot(self, t: float, positions: np.ndarray) -> SnapshotResult:
+        """Take the herd snapshot at time ``t`` (s): positions (N, 2), NaN = missing."""
+        p = np.asarray(positions, dtype=float)
+        if p.shape != (len(self.agents), 2):
+            raise HerdInputError(f'snapshot has shape {p.shape}, expected '
+                                 f'({len(self.agents)}, 2) in agents order')
+        if self.buffer_times:
+            step = t - self.buffer_times[-1]
+            if step <= 0:
+                return SnapshotResult('backwards', step=step)
+            if abs(step - self.dt) > STEP_TOLERANCE * self.dt:
+                self.break_chain()
+                self._push(t, p)
+                return SnapshotResult('gap', step=step)
+        self._push(t, p)
+        if len(self.buffer_times) < 3:
+            return SnapshotResult('primed')
+        p0, p1, p2 = self.buffer_positions
+        H, valid = self.regressor.rows(p0, p1, self.dt)
+        missing = ~np.isfinite(p0).all(axis=1)
+        valid &= ~self.regressor.missing_neighbors(missing, self.last_seen, p0)
+        y = (p2 - p1) / self.dt
+        e = self.rls.update(H, y, valid)
+        used = np.isfinite(e).all(axis=1)
+        self._count_visits(p0, used)
+        self._update_stats(e, used)
+        self.buffer_times.pop(0)
+        self.buffer_positions.pop(0)
+        return SnapshotResult('updated', used, e, self.dt)
+
+    def _push(self, t, p):
+        self.buffer_times.append(float(t))
+        self.buffer_positions.append(p.copy())
+        seen = np.isfinite(p).all(axis=1)
+        self.last_seen[seen] = p[seen]
+
+    def _count_visits(self, p0, used):
+        xmin, xmax, ymin, ymax = self.grid.bounds
+        sx, sy = self.grid.spacing
+        q = np.nan_to_num(p0[used], nan=-np.inf)
+        ix = np.floor((q[:, 0] - xmin) / sx)
+        iy = np.floor((q[:, 1] - ymin) / sy)
+        inside = (ix >= 0) & (ix < self.grid.nx) & (iy >= 0) & (iy < self.grid.ny)
+        if self.basis.size != self.grid.nx * self.grid.ny:
+            return  # a custom basis: no grid cells to count
+        rows = np.flatnonzero(used)[inside]
+        cells = (iy[inside] * self.grid.nx + ix[inside]).astype(np.int64)
+        self.visits[rows, cells] += 1
+
+    def _update_stats(self, e, used):
+        decay = 1.0 - 1.0 / self.stats_window
+        eu = e[used]
+        self.stat_sq[used] = decay * self.stat_sq[used] + (eu ** 2).sum(1)
+        self.stat_w[used] = decay * self.stat_w[used] + 1.0
+        prev = self.prev_residual[used]
+        pair = np.isfinite(prev).all(axis=1)
+        idx = np.flatnonzero(used)[pair]
+        self.stat_lag[idx] = decay * self.stat_lag[idx] + eu[pair] * prev[pair]
+        self.stat_var[idx] = decay * self.stat_var[idx] + eu[pair] ** 2
+        self.stat_pairs[idx] = decay * self.stat_pairs[idx] + 1.0
+        self.prev_residual[:] = np.nan
+        self.prev_residual[used] = eu
+
+    # -- what it says ----------------------------------------------------------------------
+    def predict(self):
+        """One-step-ahead positions (eq. 8) from the last two snapshots: (t + Δt, (N, 2)).
+
+        p̂^{τ+2} = p^{τ+1} + Δt H(p^τ, p^{τ+1}) θ; None before two snapshots of a chain.
+        """
+        if len(self.buffer_times) < 2:
+            return None
+        p0, p1 = self.buffer_positions[-2], self.buffer_positions[-1]
+        H, _ = self.regressor.rows(p0, p1, self.dt)
+        u_next = np.einsum('nkp,np->nk', H, self.rls.theta)
+        return self.buffer_times[-1] + self.dt, p1 + self.dt * u_next
+
+    def diagnostics(self) -> dict:
+        """Per-agent arrays: samples, residual_rms, lag1_autocorrelation, white_band, white,
+        condition (of P_i)."""
+        with np.errstate(invalid='ignore', divide='ignore'):
+            rms = np.sqrt(self.stat_sq / self.stat_w)
+            r1 = (self.stat_lag / self.stat_var).mean(axis=1)
+            band = 1.96 / np.sqrt(self.stat_pairs)
+        return {'samples': self.rls.samples.copy(), 'residual_rms': rms,
+                'lag1_autocorrelation': r1, 'white_band': band,
+                'white': np.abs(r1) < band, 'condition': self.rls.condition()}
+
+    def mean_field(self, points: np.ndarray) -> np.ndarray:
+        """The herd's mean environment field Σ_k [θ̄u_k, θ̄v_k] φ_k(p) at ``points`` (M, 2)."""
+        o, K = self.regressor.field_offset, self.basis.size
+        coef = self.rls.theta[:, o:o + 2 * K].mean(axis=0)
+        phi = self.basis.features(points)
+        return np.column_stack([phi @ coef[:K], phi @ coef[K:]])
+
+    def kept_centers(self) -> list[np.ndarray]:
+        """Lazy pruning: per agent, the centres whose cell it visited ≥ min_visits times."""
+        out = []
+        for i in range(len(self.agents)):
+            keep = self.visits[i] >= self.min_visits
+            if not keep.any():
+                keep = np.ones(self.basis.size, dtype=bool)  # nothing learned: keep all (θ₀)
+            out.append(keep)
+        return out
+
+    def pruned_estimate(self, keeps):
+        """θ and its standard errors with the coefficients of dropped centres set to zero.
+
+        The RLS state is the quadratic form of the least-squares cost,
+        J(θ) = (θ − θ̂)ᵀ P⁻¹ (θ − θ̂) + const, so fixing the dropped entries θ_d = 0 and
+        minimising over the kept ones gives (the conditional Gaussian mean)
+
+            θ_k = θ̂_k − P_kd P_dd⁻¹ θ̂_d,   Cov θ_k = C_kk − C_kd C_dd⁻¹ C_dk,
+
+        i.e. the least-squares fit on the kept basis alone, without revisiting the data.
+        One small solve per agent, at export time only.
+        """
+        o, K = self.regressor.field_offset, self.basis.size
+        theta, cov = self.rls.theta.copy(), self.rls.theta_cov()
+        se = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
+        for i, keep in enumerate(keeps):  # export only: one (d × d) solve per agent
+            drop = np.zeros(self.rls.n_params, dtype=bool)
+            drop[o:o + K] = drop[o + K:o + 2 * K] = ~keep
+            if not drop.any():
+                continue
+            kept = ~drop
+            P = self.rls.P[i]
+            gain = np.linalg.solve(P[np.ix_(drop, drop)], P[np.ix_(drop, kept)]).T
+            theta[i, kept] -= gain @ theta[i, drop]
+            theta[i, drop] = 0.0
+            c = cov[i]
+            ck = c[np.ix_(kept, kept)] - gain @ c[np.ix_(drop, kept)]
+            se[i, kept] = np.sqrt(np.clip(np.diag(ck), 0, None))
+        return theta, se
+
+    def model(self, frame_id: str = 'map', datum=None):
+        """The current estimate as a model (HerdModel or SharedLawModel), lazily pruned."""
+        keeps = self.kept_centers()
+        theta, se = self.pruned_estimate(keeps)
+        return self.regressor.to_model(theta, se, self.rls.noise_cov(), keeps, self.dt,
+                                       frame_id, datum)
+
+    def save_model(self, path, frame_id: str = 'map', datum=None):
+        """Write the model file (``schwager2007`` or ``schwager2007_shared``) atomically."""
+        model = self.model(frame_id, datum)
+        if self.law == 'pairwise':
+            from herd_ros.model.model_file import save_model
+            return save_model(model, path)
+        from herd_ros.model.shared_law import save_shared_model
+        return save_shared_model(model, path)
+
+    # -- checkpoints -----------------------------------------------------------------------
+    def state(self) -> dict:
+        n = len(self.agents)
+        buf_t = np.full(3, np.nan)
+        buf_p = np.full((3, n, 2), np.nan)
+        k = len(self.buffer_times)
+        buf_t[:k] = self.buffer_times
+        if k:
+            buf_p[:k] = np.stack(self.buffer_positions)
+        arrays = {f'rls_{key}': v for key, v in self.rls.state().items()}
+        arrays.update(buffer_times=buf_t, buffer_positions=buf_p, last_seen=self.last_seen,
+                      visits=self.visits, stat_sq=self.stat_sq, stat_w=self.stat_w,
+                      stat_lag=self.stat_lag, stat_var=self.stat_var,
+                      stat_pairs=self.stat_pairs, prev_residual=self.prev_residual,
+                      config=np.array(json.dumps(self.config)))
+        return arrays
+
+    def save_checkpoint(self, path) -> Path:
+        """Write the whole state to ``path`` (.npz) by write-then-rename."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
+        try:
+            with os.fdopen(fd, 'wb') as fh:
+                np.savez(fh, **self.state())
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        return path
+
+    def load_checkpoint(self, path) -> bool:
+        """Resume from ``path`` if it exists; False if absent. Raises HerdInputError when the
+        file is unreadable or was written for another configuration (agents, law, dt, grid)."""
+        path = Path(path)
+        if not path.is_file():
+            return False
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+            config = json.loads(str(data['config']))
+        except (OSError, ValueError, KeyError) as exc:
+            raise HerdInputError(f'{path}: not a readable estimator checkpoint ({exc})') from None
+        differ = [k for k in self.config if config.get(k) != self.config[k]]
+        if differ:
+            raise HerdInputError(f'{path}: checkpoint was written for another configuration '
+                                 f'({", ".join(differ)} differ)')
+        self.rls.load_state({k[4:]: v for k, v in data.items() if k.startswith('rls_')})
+        k = int(np.isfinite(data['buffer_times']).sum())
+        self.buffer_times = [float(t) for t in data['buffer_times'][:k]]
+        self.buffer_positions = [p.copy() for p in data['buffer_positions'][:k]]
+        for key in ('last_seen', 'visits', 'stat_sq', 'stat_w', 'stat_lag', 'stat_var',
+                    'stat_pairs', 'prev_residual'):
+            setattr(self, key, np.array(data[key]))
+        return True
+
+
+# -- offline driver: `herd-ros fit --online` ------------------------------------------------
+@dataclass
+class OnlineFitResult:
+    estimator: OnlineHerdEstimator
+    times: np.ndarray          # (R,) times of the recorded rows
+    runs: list                 # (R,) run label of each row
+    theta: np.ndarray          # (R, N, p)
+    samples: np.ndarray        # (R, N)
+
+
+def online_fit(runs, law: str = 'pairwise', grid=(6, 6), bounds=None, forgetting: float = 1.0,
+               p0=1e6, record_every: int | None = None, progress=None, **kwargs) -> OnlineFitResult:
+    """Run the online estimator over trajectory runs (the rows the batch fit uses).
+
+    Args:
+        runs: list of :class:`HerdTrajectory` with the same agents and clock.
+        bounds: field bounds; default the bounding box of all positions.
+        record_every: record θ every this many steps (default: about 1000 rows per run).
+        progress: optional callable(n_steps) for a progress bar.
+    """
+    from herd_ros.estimation.herd_fit import aligned_positions, check_runs
+    agents, dt = check_runs(runs)
+    positions = [aligned_positions(r, agents) for r in runs]
+    if bounds is None:
+        bounds = FieldGrid.over(np.concatenate([p.reshape(-1, 2) for p in positions]),
+                                grid[0], grid[1]).bounds
+    est = OnlineHerdEstimator(agents, dt, law, grid, bounds, forgetting, p0, **kwargs)
+    times, labels, thetas, samples = [], [], [], []
+    for run, p in zip(runs, positions):
+        every = record_every or max(1, len(p) // 1000)
+        est.break_chain()
+        for k in range(len(p)):
+            est.add_snapshot(float(run.times[k]), p[k])
+            if (k + 1) % every == 0 or k == len(p) - 1:
+                times.append(float(run.times[k]))
+                labels.append(run.run)
+                thetas.append(est.theta.copy())
+                samples.append(est.samples.copy())
+            if progress is not None and (k + 1) % 1000 == 0:
+                progress(1000)
+    return OnlineFitResult(est, np.array(times), labels, np.array(thetas), np.array(samples))
+
+
+def write_params_csv(result: OnlineFitResult, path) -> Path:
+    """Parameters over time: ``time,run,agent,samples,<labels>`` (one row per agent and time).
+
+    Pairwise labels: ``theta1_k``/``theta2_k`` refer to the k-th neighbour in the agent's
+    ``neighbors`` list of the model file (the other agents in ``agents`` order).
+    """
+    import pandas as pd
+    est = result.estimator
+    R, N, p = result.theta.shape
+    frame = pd.DataFrame(result.theta.reshape(R * N, p), columns=est.labels())
+    frame.insert(0, 'samples', result.samples.reshape(R * N))
+    frame.insert(0, 'agent', np.tile(est.agents, R))
+    frame.insert(0, 'run', np.repeat(np.array([r if r is not None else '' for r in result.runs],
+                                              dtype=object), N))
+    frame.insert(0, 'time', np.repeat(result.times, N))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frame.to_csv(path, index=False, float_format='%.10g')
+    return path

@@ -1,0 +1,257 @@
+"""Recursive least squares for every agent of a herd at once, with directional forgetting.
+
+Each agent i has its own linear regression (Schwager et al. 2007, eqs. 6–8): one herd
+snapshot gives the x and y rows of agent i together,
+
+    y_i = H_i θ_i + w_i,      H_i (2 × p),  y_i (2,),  θ_i (p,)
+
+and the estimator keeps θ (N, p) and P (N, p, p) for all N agents as plain arrays. One call
+of :meth:`HerdRLS.update` is one rank-2 update of every agent (no Python loop over agents):
+
+1. **Directional forgetting** (Kulhavý & Kárný 1984; Kulhavý 1987, "Restricted exponential
+   forgetting in real-time identification", Automatica 23(5):589–600; analysed by Bittanti,
+   Bolzern & Campi 1990, IEEE TAC 35(12):1371–1373). Old information is forgotten *only in
+   the directions the new rows excite*; in information form R = P⁻¹,
+
+       R̄ = R − (1 − λ) Hᵀ (H P Hᵀ)⁻¹ H,
+
+   which by the Woodbury identity is, in covariance form (never inverting P),
+
+       S₀ = H P Hᵀ,   M = H P,   P̄ = P + ((1 − λ)/λ) Mᵀ S₀⁻¹ M.
+
+   R̄ ≥ λR > 0, and R̄ equals R on every direction the rows do not reach, so P cannot wind
+   up in an unexcited direction however long a λ < 1 estimator runs (plain exponential
+   forgetting, P̄ = P/λ, grows like λ^{−t} there). Along the excited directions
+   H P̄ Hᵀ = S₀/λ: the same memory 1/(1 − λ) samples as exponential forgetting.
+   ``windup='exponential'`` selects plain exponential forgetting (for comparison).
+
+2. **Measurement update** (the Kalman form of RLS with unit noise), in Joseph form:
+
+       S = H P̄ Hᵀ + I₂,   K = P̄ Hᵀ S⁻¹,   e = y − H θ,   θ⁺ = θ + K e,
+       P⁺ = (I − K H) P̄ (I − K H)ᵀ + K Kᵀ
+          = P̄ − K M̄ − M̄ᵀ Kᵀ + K (H M̄ᵀ + I) Kᵀ,   M̄ = H P̄,
+
+   evaluated in the expanded rank-2 form on the right (O(p²) per agent, not O(p³)), then
+   symmetrised ½(P⁺ + P⁺ᵀ). Joseph form keeps P positive definite to first order in
+   rounding errors of K (Bucy & Joseph 1968); together with the forgetting in (1) P stays
+   symmetric positive definite and bounded over 10⁵ steps (see test/test_rls.py).
+
+With λ = 1 and P₀ = p₀ I, θ after t steps is exactly the ridge solution
+argmin Σ‖y − Hθ‖² + ‖θ − θ₀‖²/p₀, so a large p₀ gives the batch least-squares solution
+(:mod:`herd_ros.estimation.batch_ls`); a finite p₀ is the **ridge prior** θ ~ N(θ₀, p₀ I σ²)
+(``prior_mean`` θ₀, default 0). ``p0`` may be a scalar, a (p,) diagonal or an (N, p, p) array.
+
+**Covariance of θ**: P is the covariance of θ in units of the noise variance, so
+Cov θ_i ≈ σ̂_i² P_i with σ̂_i² the mean a-posteriori residual variance per component
+(:meth:`HerdRLS.theta_cov`); :meth:`HerdRLS.noise_cov` is the 2 × 2 Q_i of the residuals.
+
+**Masks**: ``update(..., mask)`` skips agents whose row is missing (an agent absent or
+stale in a snapshot, a non-finite regressor); their θ, P and counters are untouched.
+Non-finite rows are always masked, so a NaN never enters θ.
+
+**Reset**: :meth:`HerdRLS.reset_covariance` sets P_i = P₀ (keeping θ_i: re-opens the
+estimator after a known change); :meth:`HerdRLS.reset` also restores θ₀ and the counters.
+
+Units: θ and P in the units of the regression (here velocities in m/s and their
+regressors); λ dimensionless in (0, 1].
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from herd_ros.errors import HerdInputError
+
+WINDUP_METHODS = ('directional', 'exponential')
+
+
+def _solve2(S: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """S⁻¹ B for stacks of symmetric 2×2 S (n, 2, 2) and B (n, 2, k), by the closed form."""
+    a, b, d = S[:, 0, 0], 0.5 * (S[:, 0, 1] + S[:, 1, 0]), S[:, 1, 1]
+    det = a * d - b * b
+    inv = np.empty_like(S)
+    inv[:, 0, 0] = d
+    inv[:, 1, 1] = a
+    inv[:, 0, 1] = inv[:, 1, 0] = -b
+    inv /= det[:, None, None]
+    return inv @ B
+
+
+def _pinv2(S: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
+    """Pseudo-inverse of symmetric PSD 2×2 stacks (n, 2, 2) (rank-deficient rows allowed)."""
+    return np.linalg.pinv(0.5 * (S + np.swapaxes(S, -1, -2)), rcond=rcond, hermitian=True)
+
+
+class HerdRLS:
+    """Batched RLS state of N independent agents with p parameters each.
+
+    Attributes (plain arrays, inspect freely):
+        theta: (N, p) current estimates θ_i.
+        P: (N, p, p) covariance (in units of the noise variance).
+        samples: (N,) number of updates each agent received.
+        forgetting: λ in (0, 1].
+        sq_residual: (N, 2, 2) exponentially weighted Σ e eᵀ of a-posteriori residuals.
+        weight: (N,) the matching weight Σ λ^k (for the mean).
+    """
+
+    def __init__(self, n_agents: int, n_params: int, forgetting: float = 1.0, p0=1e6,
+                 prior_mean=None, windup: str = 'directional'):
+        if not (0.0 < forgetting <= 1.0):
+            raise HerdInputError(f'forgetting factor must be in (0, 1], got {forgetting}')
+        if windup not in WINDUP_METHODS:
+            raise HerdInputError(f'windup must be one of {WINDUP_METHODS}, got {windup!r}')
+        if n_agents < 1 or n_params < 1:
+            raise HerdInputError(f'RLS needs ≥ 1 agent and ≥ 1 parameter, got '
+                                 f'{n_agents} × {n_params}')
+        self.n_agents, self.n_params = int(n_agents), int(n_params)
+        self.forgetting = float(forgetting)
+        self.windup = windup
+        self.P0 = self._initial_covariance(p0)
+        self.prior_mean = (np.zeros((n_agents, n_params)) if prior_mean is None else
+                           np.broadcast_to(np.asarray(prior_mean, float),
+                                           (n_agents, n_params)).copy())
+        self.reset()
+
+    def _initial_covariance(self, p0) -> np.ndarray:
+        n, p = self.n_agents, self.n_params
+        p0 = np.asarray(p0, dtype=float)
+        if p0.ndim == 0:
+            P0 = np.broadcast_to(np.eye(p) * float(p0), (n, p, p))
+        elif p0.shape == (p,):
+            P0 = np.broadcast_to(np.diag(p0), (n, p, p))
+        elif p0.shape in ((p, p), (n, p, p)):
+            P0 = np.broadcast_to(p0, (n, p, p))
+        else:
+            raise HerdInputError(f'p0 must be a scalar, ({p},), ({p}, {p}) or ({n}, {p}, {p}); '
+                                 f'got shape {p0.shape}')
+        diag = np.diagonal(P0, axis1=-2, axis2=-1)
+        if not (np.isfinite(P0).all() and (diag > 0).all()):
+            raise HerdInputError('p0 must be finite and positive')
+        return P0
+
+    # -- state ---------------------------------------------------------------------------
+    def reset(self, agents=None):
+        """Back to the prior: θ = θ₀, P = P₀, counters zero (all agents or a mask/indices)."""
+        if agents is None or not hasattr(self, 'theta'):
+            self.theta = self.prior_mean.copy()
+            self.P = np.array(self.P0, dtype=float)
+            self.samples = np.zeros(self.n_agents, dtype=np.int64)
+            self.sq_residual = np.zeros((self.n_agents, 2, 2))
+            self.weight = np.zeros(self.n_agents)
+            return
+        self.theta[agents] = self.prior_mean[agents]
+        self.P[agents] = self.P0[agents]
+        self.samples[agents] = 0
+        self.sq_residual[agents] = 0.0
+        self.weight[agents] = 0.0
+
+    def reset_covariance(self, agents=None):
+        """P_i = P₀ (keep θ_i): re-open the estimator after a known change of the herd."""
+        if agents is None:
+            self.P = np.array(self.P0, dtype=float)
+        else:
+            self.P[agents] = self.P0[agents]
+
+    # -- the update ----------------------------------------------------------------------
+    def update(self, H: np.ndarray, y: np.ndarray, mask=None) -> np.ndarray:
+        """One rank-2 update of every agent (module docstring, steps 1–2).
+
+        Args:
+            H: (N, 2, p) the x and y regression rows of each agent.
+            y: (N, 2) targets (here u^{τ+1}, m/s).
+            mask: (N,) bool, True = use this agent (default all); agents with non-finite
+                rows are skipped regardless.
+        Returns:
+            e: (N, 2) a-priori residuals y − H θ (NaN for skipped agents).
+        """
+        H = np.asarray(H, dtype=float)
+        y = np.asarray(y, dtype=float)
+        n, p = self.n_agents, self.n_params
+        if H.shape != (n, 2, p) or y.shape != (n, 2):
+            raise HerdInputError(f'RLS update needs H ({n}, 2, {p}) and y ({n}, 2), got '
+                                 f'{H.shape} and {y.shape}')
+        use = np.isfinite(H).all(axis=(1, 2)) & np.isfinite(y).all(axis=1)
+        if mask is not None:
+            use &= np.asarray(mask, dtype=bool)
+        e_all = np.full((n, 2), np.nan)
+        if not use.any():
+            return e_all
+        idx = None if use.all() else np.flatnonzero(use)
+        Hs = H if idx is None else H[idx]
+        ys = y if idx is None else y[idx]
+        P = self.P if idx is None else self.P[idx]
+        th = self.theta if idx is None else self.theta[idx]
+        Ht = np.swapaxes(Hs, 1, 2)
+        lam = self.forgetting
+
+        M = Hs @ P                                        # (n, 2, p)  H P
+        if lam < 1.0:
+            if self.windup == 'directional':
+                S0 = M @ Ht                               # (n, 2, 2)  H P Hᵀ
+                c = (1.0 - lam) / lam
+                S0pM = _pinv2(S0) @ M                     # S₀⁺ H P
+                P = P + c * (np.swapaxes(M, 1, 2) @ S0pM)
+                M = M + c * (S0 @ S0pM)                   # H P̄ without another p² product
+            else:
+                P = P / lam
+                M = M / lam
+        S = M @ Ht + np.eye(2)                            # H P̄ Hᵀ + I
+        K = np.swapaxes(_solve2(S, M), 1, 2)              # (n, p, 2) = P̄ Hᵀ S⁻¹
+        e = ys - np.einsum('nkp,np->nk', Hs, th)
+        th = th + np.einsum('npk,nk->np', K, e)
+        KM = K @ M                                        # (n, p, p)  K H P̄
+        P = P - KM - np.swapaxes(KM, 1, 2) + K @ (S @ np.swapaxes(K, 1, 2))
+        P = 0.5 * (P + np.swapaxes(P, 1, 2))
+
+        r = ys - np.einsum('nkp,np->nk', Hs, th)          # a-posteriori residual
+        if idx is None:
+            self.P, self.theta = P, th
+        else:
+            self.P[idx], self.theta[idx] = P, th
+        sel = use
+        self.samples[sel] += 1
+        self.sq_residual[sel] = lam * self.sq_residual[sel] + r[:, :, None] * r[:, None, :]
+        self.weight[sel] = lam * self.weight[sel] + 1.0
+        e_all[sel] = e
+        return e_all
+
+    # -- what the estimate says ----------------------------------------------------------
+    def noise_cov(self) -> np.ndarray:
+        """Q_i (N, 2, 2): weighted mean of the a-posteriori residual outer products."""
+        w = np.maximum(self.weight, 1.0)[:, None, None]
+        return self.sq_residual / w
+
+    def theta_cov(self) -> np.ndarray:
+        """Cov θ_i ≈ σ̂_i² P_i (N, p, p), σ̂_i² = trace(Q_i)/2 (degrees of freedom corrected)."""
+        dof = np.maximum(2.0 * self.weight - self.n_params, 1.0)
+        sigma2 = np.trace(self.sq_residual, axis1=1, axis2=2) / dof
+        return sigma2[:, None, None] * self.P
+
+    def theta_se(self) -> np.ndarray:
+        """Standard errors (N, p): √diag(Cov θ_i)."""
+        return np.sqrt(np.clip(np.diagonal(self.theta_cov(), axis1=1, axis2=2), 0, None))
+
+    def condition(self) -> np.ndarray:
+        """Condition number of each P_i (N,) (ratio of extreme eigenvalues)."""
+        w = np.linalg.eigvalsh(self.P)
+        return w[:, -1] / np.maximum(w[:, 0], 1e-300)
+
+    # -- persistence ---------------------------------------------------------------------
+    def state(self) -> dict:
+        """Arrays that restore this estimator exactly (see :meth:`load_state`)."""
+        return {'theta': self.theta, 'P': self.P, 'samples': self.samples,
+                'sq_residual': self.sq_residual, 'weight': self.weight,
+                'forgetting': np.array(self.forgetting)}
+
+    def load_state(self, state: dict):
+        """Restore :meth:`state` (shapes must match this estimator)."""
+        n, p = self.n_agents, self.n_params
+        shapes = {'theta': (n, p), 'P': (n, p, p), 'samples': (n,),
+                  'sq_residual': (n, 2, 2), 'weight': (n,)}
+        for key, shape in shapes.items():
+            if key not in state or np.shape(state[key]) != shape:
+                raise HerdInputError(f'RLS state: {key} must have shape {shape}')
+        self.theta = np.array(state['theta'], dtype=float)
+        self.P = np.array(state['P'], dtype=float)
+        self.samples = np.array(state['samples'], dtype=np.int64)
+        self.sq_residual = np.array(state['sq_residual'], dtype=float)
+        self.weight = np.array(state['weight'], dtype=float)

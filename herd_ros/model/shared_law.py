@@ -1,0 +1,367 @@
+"""A shared interaction law whose parameter count does not grow with the herd.
+
+The pairwise law of Schwager et al. (2007) gives agent i two parameters per neighbour
+(θ1_ij, θ2_ij), so p grows with N and a herd of thousands is out of reach. The shared law
+keeps their model (eq. 2) but gives every neighbour within a radius r the **same**
+attraction/repulsion profile F_i(d), expanded in a radial basis of the distance:
+
+    u_i^{τ+1} = a_i u_i^τ + Σ_{j: d_ij < r} F_i(d_ij) e_ij + g_i(p_i^τ) + w_i^τ
+    F_i(d)    = Σ_b c_ib ψ_b(d),   ψ_b(d) = exp(−(d − r_b)² / 2s²) · ½(1 + cos(π d / r))
+
+with e_ij = (p_j − p_i)/d_ij, bump centres r_b = r (b + ½)/B evenly in (0, r), width
+s = ⅔ r/B (the ⅔-of-spacing rule of the field basis), and a cosine taper so F vanishes
+smoothly at the radius (a neighbour entering the radius does not kick the agent).
+F > 0 attracts, F < 0 repels. g_i is the RBF field of :mod:`rbf_field`.
+
+Per agent θ_i = [a_i, c_i1 … c_iB, θu_i1 … θu_iK, θv_i1 … θv_iK], p = 1 + B + 2K whatever N.
+The profile c_i is **per agent**, not shared across agents: each agent stays its own
+independent regression (so the batched RLS of :mod:`herd_ros.estimation.rls` applies
+unchanged and a collar that drops out affects only itself), animals of one herd do differ in
+how close they keep to others, and a herd-wide profile is recovered as the mean of the c_i.
+
+Neighbours come from :class:`scipy.spatial.cKDTree` (``query_pairs``), so one snapshot of
+N animals costs O(N log N + pairs) rather than O(N²).
+
+Model file (``kind: schwager2007_shared``; the ``model:`` mapping of DESIGN.md)::
+
+    model:
+      kind: schwager2007_shared
+      dt: 1.0
+      frame_id: map
+      datum: [lat, lon, alt]          # optional
+      agents: [cow_1, cow_2, ...]
+      interaction_radius: 60.0        # r (m): neighbours beyond it exert nothing
+      profile_centers: [5.0, 15.0, ...]  # r_b (m), B entries
+      profile_width: 6.67             # s (m)
+      cow_1:
+        damping: 0.93
+        profile: [c_1, ..., c_B]      # m/s² per unit ψ: F(d) = Σ c_b ψ_b(d)
+        rbf_centers_x: [..]           # as in schwager2007
+        rbf_centers_y: [..]
+        rbf_sigma: [..]
+        field_u: [..]
+        field_v: [..]
+        noise_cov: [qxx, qxy, qyx, qyy]
+        theta_se: [..]                # optional, order [damping, profile.., field_u.., field_v..]
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from herd_ros.errors import HerdInputError
+from herd_ros.model.rbf_field import RbfBasis
+
+KIND = 'schwager2007_shared'
+DEFAULT_RADIUS = 60.0
+DEFAULT_PROFILE_SIZE = 6
+
+
+@dataclass(frozen=True)
+class DistanceProfile:
+    """The radial basis ψ_b(d) of the shared law (module docstring)."""
+
+    radius: float
+    centers: tuple
+    width: float
+
+    def __post_init__(self):
+        if not (np.isfinite(self.radius) and self.radius > 0):
+            raise HerdInputError(f'interaction radius must be positive, got {self.radius}')
+        if len(self.centers) < 1 or not (np.isfinite(self.width) and self.width > 0):
+            raise HerdInputError('the distance profile needs ≥ 1 centre and a positive width')
+
+    @staticmethod
+    def even(radius: float = DEFAULT_RADIUS, size: int = DEFAULT_PROFILE_SIZE):
+        """B = ``size`` bumps evenly in (0, r), width ⅔ of their spacing."""
+        if size < 1:
+            raise HerdInputError(f'profile size must be ≥ 1, got {size}')
+        spacing = float(radius) / size
+        return DistanceProfile(float(radius), tuple(spacing * (np.arange(size) + 0.5)),
+                               2.0 / 3.0 * spacing)
+
+    @property
+    def size(self) -> int:
+        return len(self.centers)
+
+    def features(self, distance) -> np.ndarray:
+        """ψ_b(d): distances (...,) -> (..., B); zero at and beyond the radius."""
+        d = np.asarray(distance, dtype=float)
+        c = np.asarray(self.centers)
+        taper = np.where(d < self.radius, 0.5 * (1.0 + np.cos(np.pi * np.minimum(
+            d / self.radius, 1.0))), 0.0)
+        return np.exp(-(d[..., None] - c) ** 2 / (2.0 * self.width ** 2)) * taper[..., None]
+
+    def force(self, coefficients, distance) -> np.ndarray:
+        """F(d) = Σ_b c_b ψ_b(d) (positive = attraction): (B,) × (...,) -> (...,)."""
+        return self.features(distance) @ np.asarray(coefficients, dtype=float)
+
+
+def neighbor_pairs(positions: np.ndarray, radius: float):
+    """Pairs (i < j) closer than ``radius``: index arrays (M,), offsets p_j − p_i (M, 2), d (M,).
+
+    Rows with non-finite positions take no part.
+    """
+    p = np.asarray(positions, dtype=float)
+    ok = np.flatnonzero(np.isfinite(p).all(axis=1))
+    if len(ok) < 2:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty, np.zeros((0, 2)), np.zeros(0)
+    pairs = cKDTree(p[ok]).query_pairs(radius, output_type='ndarray')
+    i, j = ok[pairs[:, 0]], ok[pairs[:, 1]]
+    off = p[j] - p[i]
+    return i, j, off, np.sqrt((off ** 2).sum(-1))
+
+
+def interaction_features(positions: np.ndarray, profile: DistanceProfile):
+    """Σ_{j: d_ij<r} ψ_b(d_ij) e_ij for every agent: (N, 2) -> (N, B, 2), and a valid mask.
+
+    An agent that coincides with a neighbour (d = 0: e_ij undefined) is marked invalid.
+    """
+    p = np.asarray(positions, dtype=float)
+    n, B = p.shape[0], profile.size
+    i, j, off, d = neighbor_pairs(p, profile.radius)
+    valid = np.isfinite(p).all(axis=1)
+    zero = d <= 0
+    if zero.any():
+        valid[i[zero]] = False
+        valid[j[zero]] = False
+        i, j, off, d = i[~zero], j[~zero], off[~zero], d[~zero]
+    e = off / d[:, None] if len(d) else off
+    psi = profile.features(d)                           # (M, B)
+    out = np.zeros((n, B, 2))
+    for b in range(B):                                  # loop over basis columns, not agents
+        for k in range(2):
+            w = psi[:, b] * e[:, k]
+            out[:, b, k] = np.bincount(i, w, minlength=n) - np.bincount(j, w, minlength=n)
+    return out, valid
+
+
+def shared_rows(p_prev: np.ndarray, p_cur: np.ndarray, dt: float, profile: DistanceProfile,
+                basis: RbfBasis):
+    """Regression rows of u^{τ+1} for all agents from p^τ (``p_prev``) and p^{τ+1} (``p_cur``).
+
+    Returns H (N, 2, p) with rows [u, Σψ e, φ, 0] (x) and [u, Σψ e, 0, φ] (y), p = 1 + B + 2K,
+    and valid (N,) (finite positions, no coincident neighbour).
+    """
+    p0 = np.asarray(p_prev, dtype=float)
+    u = (np.asarray(p_cur, dtype=float) - p0) / dt
+    n, B, K = p0.shape[0], profile.size, basis.size
+    inter, valid = interaction_features(p0, profile)
+    phi = basis.features(np.nan_to_num(p0))
+    H = np.zeros((n, 2, 1 + B + 2 * K))
+    H[:, :, 0] = u
+    H[:, 0, 1:1 + B] = inter[..., 0]
+    H[:, 1, 1:1 + B] = inter[..., 1]
+    H[:, 0, 1 + B:1 + B + K] = phi
+    H[:, 1, 1 + B + K:] = phi
+    valid &= np.isfinite(u).all(axis=1)
+    return H, valid
+
+
+@dataclass
+class SharedLawModel:
+    """A herd under the shared law; same surface as :class:`HerdModel` (simulate, predict).
+
+    Attributes: damping (N,), profile_coef (N, B), bases (one :class:`RbfBasis` per agent),
+    field_u/field_v (lists of (K_i,)), noise_cov (N, 2, 2), theta_se (optional list).
+    """
+
+    agents: list[str]
+    dt: float
+    profile: DistanceProfile
+    damping: np.ndarray
+    profile_coef: np.ndarray
+    bases: list
+    field_u: list
+    field_v: list
+    noise_cov: np.ndarray
+    theta_se: list | None = None
+    frame_id: str = 'map'
+    datum: list | None = None
+    meta: dict = field(default_factory=dict)
+
+    kind = KIND
+
+    def __post_init__(self):
+        n = len(self.agents)
+        self.damping = np.asarray(self.damping, dtype=float).reshape(n)
+        self.profile_coef = np.asarray(self.profile_coef, dtype=float).reshape(n, self.profile.size)
+        self.noise_cov = np.asarray(self.noise_cov, dtype=float).reshape(n, 2, 2)
+        if not (self.dt > 0):
+            raise HerdInputError(f'model dt must be positive, got {self.dt}')
+        if not (len(self.bases) == len(self.field_u) == len(self.field_v) == n):
+            raise HerdInputError('shared-law model needs one basis and field per agent')
+        kmax = max([b.size for b in self.bases] + [1])
+        self._centers = np.zeros((n, kmax, 2))
+        self._sigma = np.ones((n, kmax))
+        self._coef = np.zeros((n, kmax, 2))
+        for i, b in enumerate(self.bases):  # packing once at load time, not per step
+            k = b.size
+            if len(self.field_u[i]) != k or len(self.field_v[i]) != k:
+                raise HerdInputError(f'agent {self.agents[i]}: field_u/field_v need {k} entries')
+            self._centers[i, :k], self._sigma[i, :k] = b.centers, b.sigma
+            self._coef[i, :k, 0], self._coef[i, :k, 1] = self.field_u[i], self.field_v[i]
+
+    @property
+    def n_agents(self) -> int:
+        return len(self.agents)
+
+    def theta(self, i: int) -> np.ndarray:
+        """θ_i = [damping, profile.., field_u.., field_v..]."""
+        return np.concatenate([[self.damping[i]], self.profile_coef[i], self.field_u[i],
+                               self.field_v[i]])
+
+    def interaction(self, positions: np.ndarray) -> np.ndarray:
+        """Σ_{j: d<r} F_i(d_ij) e_ij for positions (N, 2) or (T, N, 2)."""
+        p = np.asarray(positions, dtype=float)
+        if p.ndim == 3:
+            return np.stack([self.interaction(q) for q in p])
+        inter, _ = interaction_features(p, self.profile)            # (N, B, 2)
+        return np.einsum('nbk,nb->nk', inter, self.profile_coef)
+
+    def environment(self, positions: np.ndarray) -> np.ndarray:
+        """g_i(p_i) for positions (..., N, 2)."""
+        p = np.asarray(positions, dtype=float)
+        d2 = ((p[..., :, None, :] - self._centers) ** 2).sum(-1)
+        phi = np.exp(-d2 / (2.0 * self._sigma ** 2)) / (self._sigma * np.sqrt(2.0 * np.pi))
+        return (phi[..., None] * self._coef).sum(-2)
+
+    def drift(self, positions):
+        return self.interaction(positions) + self.environment(positions)
+
+    def next_velocity(self, velocity, positions):
+        """E[u^{τ+1}] = a_i u^τ + Σ F e + g."""
+        return self.damping[:, None] * velocity + self.drift(positions)
+
+    def predict_one_step(self, positions):
+        """Eq. 8: (T, N, 2) -> p̂ (T−2, N, 2)."""
+        p = np.asarray(positions, dtype=float)
+        u = np.diff(p, axis=0) / self.dt
+        return p[1:-1] + self.dt * self.next_velocity(u[:-1], p[:-2])
+
+    def residuals(self, positions):
+        p = np.asarray(positions, dtype=float)
+        u = np.diff(p, axis=0) / self.dt
+        return u[1:] - self.next_velocity(u[:-1], p[:-2])
+
+    def describe(self) -> str:
+        lines = [f'SharedLawModel({KIND}, {self.n_agents} agents, dt={self.dt:g} s, radius '
+                 f'{self.profile.radius:g} m, {self.profile.size} profile terms)']
+        for i, a in enumerate(self.agents[:20]):
+            lines.append(f'  {a}: damping {self.damping[i]:.4f}; {self.bases[i].size} centres')
+        return '\n'.join(lines)
+
+    __str__ = describe
+
+
+# -- model file ------------------------------------------------------------------------------
+def _floats(values) -> list[float]:
+    return [float(v) for v in np.asarray(values, dtype=float).ravel()]
+
+
+def shared_model_to_dict(model: SharedLawModel) -> dict:
+    """The ``model:`` mapping of a ``schwager2007_shared`` parameters file."""
+    from herd_ros.model.model_file import check_agent_id
+    body = {'kind': KIND, 'dt': float(model.dt), 'frame_id': model.frame_id}
+    if model.datum is not None:
+        body['datum'] = _floats(model.datum)
+    body['agents'] = [check_agent_id(a) for a in model.agents]
+    body['interaction_radius'] = float(model.profile.radius)
+    body['profile_centers'] = _floats(model.profile.centers)
+    body['profile_width'] = float(model.profile.width)
+    for i, a in enumerate(model.agents):
+        b = model.bases[i]
+        if b.size == 0:
+            raise HerdInputError(f'agent {a} has no field centre; a ROS parameter array cannot '
+                                 f'be empty')
+        entry = {'damping': float(model.damping[i]), 'profile': _floats(model.profile_coef[i]),
+                 'rbf_centers_x': _floats(b.centers[:, 0]),
+                 'rbf_centers_y': _floats(b.centers[:, 1]), 'rbf_sigma': _floats(b.sigma),
+                 'field_u': _floats(model.field_u[i]), 'field_v': _floats(model.field_v[i]),
+                 'noise_cov': _floats(model.noise_cov[i])}
+        if model.theta_se is not None:
+            entry['theta_se'] = _floats(model.theta_se[i])
+        body[a] = entry
+    return body
+
+
+def shared_model_from_dict(body: dict, source: str = 'model') -> SharedLawModel:
+    """Inverse of :func:`shared_model_to_dict`; errors name the source and key."""
+    def need(mapping, key, where):
+        if key not in mapping:
+            raise HerdInputError(f'{source}: {where} has no key {key!r}')
+        return mapping[key]
+
+    if body.get('kind') != KIND:
+        raise HerdInputError(f'{source}: model kind {body.get("kind")!r} is not {KIND!r}')
+    try:
+        profile = DistanceProfile(float(need(body, 'interaction_radius', 'model')),
+                                  tuple(float(c) for c in need(body, 'profile_centers', 'model')),
+                                  float(need(body, 'profile_width', 'model')))
+        agents = [str(a) for a in need(body, 'agents', 'model')]
+        damping, coef, bases, fu, fv, q, se = [], [], [], [], [], [], []
+        for a in agents:
+            e = need(body, a, 'model')
+            for key in ('damping', 'profile', 'rbf_centers_x', 'rbf_centers_y', 'rbf_sigma',
+                        'field_u', 'field_v', 'noise_cov'):
+                need(e, key, f'model.{a}')
+            if len(e['profile']) != profile.size:
+                raise HerdInputError(f'{source}: model.{a}.profile needs {profile.size} '
+                                     f'entries (one per profile centre)')
+            damping.append(float(e['damping']))
+            coef.append(np.asarray(e['profile'], float))
+            bases.append(RbfBasis(np.column_stack([np.asarray(e['rbf_centers_x'], float),
+                                                   np.asarray(e['rbf_centers_y'], float)]),
+                                  np.asarray(e['rbf_sigma'], float)))
+            fu.append(np.asarray(e['field_u'], float))
+            fv.append(np.asarray(e['field_v'], float))
+            q.append(np.asarray(e['noise_cov'], float).reshape(2, 2))
+            se.append(np.asarray(e['theta_se'], float) if 'theta_se' in e else None)
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, HerdInputError):
+            raise
+        raise HerdInputError(f'{source}: malformed shared-law model ({exc})') from None
+    return SharedLawModel(agents=agents, dt=float(need(body, 'dt', 'model')), profile=profile,
+                          damping=damping, profile_coef=np.array(coef), bases=bases,
+                          field_u=fu, field_v=fv, noise_cov=np.array(q),
+                          theta_se=None if any(s is None for s in se) else se,
+                          frame_id=str(body.get('frame_id', 'map')), datum=body.get('datum'))
+
+
+def save_shared_model(model: SharedLawModel, path):
+    """Write the ``schwager2007_shared`` model file atomically."""
+    from herd_ros.model.model_file import dump_parameters, write_atomic
+    return write_atomic(path, dump_parameters(shared_model_to_dict(model)))
+
+
+def load_shared_model(path) -> SharedLawModel:
+    from herd_ros.model.model_file import load_model_body
+    return shared_model_from_dict(load_model_body(path), source=str(path))
+
+
+def make_shared_truth(n_agents: int, seed=0, profile: DistanceProfile | None = None,
+                      basis: RbfBasis | None = None, field_fn=None, dt: float = 1.0,
+                      noise_std: float = 0.05, damping_range=(0.90, 0.97),
+                      spacing=20.0, strength=0.02) -> SharedLawModel:
+    """A known-truth shared-law herd: every agent repels below ``spacing`` m and attracts beyond
+    (F(d) ≈ strength·(d − spacing)/spacing, projected on the profile basis), damping drawn
+    uniformly, and ``field_fn(centres) -> (K, 2)`` coefficients of the field (default none)."""
+    rng = np.random.default_rng(seed)
+    profile = profile or DistanceProfile.even()
+    agents = [f'agent_{k + 1}' for k in range(n_agents)]
+    d = np.linspace(0.5, profile.radius * 0.999, 400)
+    target = strength * (d - spacing) / spacing * 0.5 * (1 + np.cos(np.pi * d / profile.radius))
+    c, *_ = np.linalg.lstsq(profile.features(d), target, rcond=None)
+    basis = basis or RbfBasis(np.zeros((1, 2)), np.ones(1) * 1e3)
+    coef_field = (np.zeros((basis.size, 2)) if field_fn is None
+                  else np.asarray(field_fn(basis.centers), float))
+    gains = rng.uniform(0.8, 1.2, size=n_agents)
+    return SharedLawModel(
+        agents=agents, dt=dt, profile=profile,
+        damping=rng.uniform(*damping_range, size=n_agents),
+        profile_coef=np.outer(gains, c), bases=[basis] * n_agents,
+        field_u=[coef_field[:, 0]] * n_agents, field_v=[coef_field[:, 1]] * n_agents,
+        noise_cov=np.tile(np.eye(2) * noise_std ** 2, (n_agents, 1, 1)))
