@@ -1,0 +1,124 @@
+"""`herd-ros fit` / `simulate` / `synth` / `report` end to end, and bad input as one clear line."""
+import subprocess
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import REPO
+from herd_ros.cli.main import main
+from herd_ros.model.model_file import load_model
+from herd_ros.trajectory import read_trajectory_csv
+
+HEADER = 'time,agent,x,y\n'
+
+
+def run_cli(argv, capsys):
+    status = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+@pytest.fixture(scope='module')
+def known_data(tmp_path_factory):
+    d = tmp_path_factory.mktemp('known')
+    assert main(['synth', '--law', 'schwager', '--agents', '3', '--steps', '4000', '--seed', '3',
+                 '-o', str(d / 'data.csv'), '--truth-out', str(d / 'truth.yaml')]) == 0
+    return d
+
+
+def test_fit_simulate_report_round_trip(known_data, tmp_path, capsys):
+    model_path = tmp_path / 'model.yaml'
+    status, out, _ = run_cli(['fit', known_data / 'data.csv', '-o', model_path, '--grid', '6x6',
+                              '--bounds=-75,75,-75,75', '--report', tmp_path / 'rep'], capsys)
+    assert status == 0
+    assert 'constant velocity' in out and 'agent_1' in out
+    doc = yaml.safe_load(model_path.read_text())
+    body = doc['/**']['ros__parameters']['model']
+    assert body['kind'] == 'schwager2007' and body['agents'] == ['agent_1', 'agent_2', 'agent_3']
+    law = body['agent_1']
+    n_theta = 1 + 2 * len(law['neighbors']) + 2 * len(law['field_u'])
+    assert len(law['theta_se']) == n_theta and len(law['noise_cov']) == 4
+    for name in ('fig2_interaction', 'fig3_field', 'fig4_whiteness', 'fig5_trajectories',
+                 'fig6_statistics'):
+        assert (tmp_path / 'rep' / f'{name}.png').stat().st_size > 10_000
+    status, out, _ = run_cli(['simulate', model_path, '--steps', '500', '--seed', '1',
+                              '-o', tmp_path / 'sim.csv'], capsys)
+    assert status == 0
+    sim = read_trajectory_csv(tmp_path / 'sim.csv')[0]
+    assert sim.positions.shape == (500, 3, 2) and np.isfinite(sim.positions).all()
+    status, out, _ = run_cli(['report', model_path, known_data / 'data.csv',
+                              '--out', tmp_path / 'rep2'], capsys)
+    assert status == 0 and (tmp_path / 'rep2' / 'summary.json').exists()
+
+
+def test_fit_reads_the_shipped_bag_and_a_gps_csv(tmp_path, capsys):
+    bag = REPO / 'bags' / 'cows_3x1h'
+    status, out, err = run_cli(['fit', bag, '--dt', '10', '--accel-std', '0.02',
+                                '-o', tmp_path / 'cows.yaml', '--grid', '6x6'], capsys)
+    assert status == 0, err
+    model = load_model(tmp_path / 'cows.yaml')
+    assert model.agents == ['cow_1', 'cow_2', 'cow_3'] and model.dt == 10.0
+    assert model.datum is not None and abs(model.datum[0] - 27.0153) < 0.01
+    status, _, err = run_cli(['synth', '--scenario', 'cows', '--agents', '3', '--duration', '1800',
+                              '-o', tmp_path / 'truth.csv', '--gps-out', tmp_path / 'gps.csv'],
+                             capsys)
+    assert status == 0, err
+    status, out, err = run_cli(['fit', tmp_path / 'gps.csv', '--dt', '10', '--grid', '4x4',
+                                '-o', tmp_path / 'gps_model.yaml'], capsys)
+    assert status == 0, err
+
+
+def _write(path, rows, header=HEADER):
+    path.write_text(header + ''.join(rows))
+    return path
+
+
+def _steps(n=50, agents=('a', 'b'), dt=1.0, skip=None):
+    rng = np.random.default_rng(0)
+    rows = []
+    for k in range(n):
+        for j, a in enumerate(agents):
+            if skip == (k, a):
+                continue
+            rows.append(f'{k * dt},{a},{10 * j + rng.normal()},{rng.normal()}\n')
+    return rows
+
+
+BAD = {
+    'unsorted rows': lambda p: _write(p, _steps()[:10][::-1] + _steps()[10:]),
+    'duplicate timestamps': lambda p: _write(p, _steps()[:4] + _steps()[2:]),
+    'agent missing rows': lambda p: _write(p, _steps(skip=(7, 'b'))),
+    'co-located agents': lambda p: _write(p, [f'{k},{a},1.0,2.0\n' for k in range(50)
+                                                for a in 'ab']),
+    'NaN': lambda p: _write(p, _steps()[:5] + ['5,a,nan,1\n'] + _steps()[6:]),
+    'fewer samples than parameters': lambda p: _write(p, _steps(n=6)),
+    'non-uniform clock': lambda p: _write(p, _steps(n=20) + [r.replace(r.split(',')[0], str(
+        float(r.split(',')[0]) + 0.5), 1) for r in _steps(n=40)[40:]]),
+    'missing column': lambda p: _write(p, ['0,a,1\n'], header='time,agent,x\n'),
+    'not a file': lambda p: p.parent / 'nope.csv',
+}
+
+
+@pytest.mark.parametrize('case', sorted(BAD))
+def test_bad_input_is_one_clear_line(case, tmp_path, capsys):
+    data = BAD[case](tmp_path / 'bad.csv')
+    status, out, err = run_cli(['fit', data, '-o', tmp_path / 'm.yaml', '--grid', '2x2',
+                                '--min-visits', '1'], capsys)
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert status == 2, (case, out, err)
+    assert len(lines) == 1 and lines[0].startswith('herd-ros fit: error: '), (case, err)
+    assert 'Traceback' not in err
+    assert not (tmp_path / 'm.yaml').exists()
+
+
+def test_installed_command_reports_errors_without_traceback(tmp_path, console_script):
+    bad = BAD['NaN'](tmp_path / 'bad.csv')
+    proc = subprocess.run([console_script('herd-ros'), 'fit', str(bad), '-o',
+                           str(tmp_path / 'm.yaml')], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count('\n') == 0 and 'line 7' in proc.stderr, proc.stderr
+    help_text = subprocess.run([console_script('herd-ros'), '--help'], capture_output=True,
+                               text=True, timeout=60).stdout
+    for verb in ('fit', 'simulate', 'report', 'synth', 'import', 'imitate', 'flock', 'demo'):
+        assert verb in help_text
