@@ -1,5 +1,283 @@
-"""`fleet_sim` node (not implemented yet)."""
+"""`fleet_sim` node: N simulated robots (holonomic or unicycle) driven by body-frame Twists.
+
+Subscribes ``/fleet/<robot>/cmd_vel`` (geometry_msgs/Twist, body frame, REP-103). Publishes
+``/fleet/<robot>/odom`` (nav_msgs/Odometry: pose in ``frame_id``, twist in
+``<robot>/base_link``), ``/fleet/poses`` (PoseArray in ``robots`` order),
+``/fleet/<robot>/fix`` (NavSatFix about ``datum``, at ``fix_rate_hz``) and ``/diagnostics``.
+
+The physics is :mod:`herd_ros.control.kinematics`; the node steps it on a timer of the node
+clock (so ``use_sim_time`` works) with the clock time elapsed since the last step. A robot
+whose last command is older than ``cmd_timeout_s`` (or that never got one) is stopped at
+once — a watchdog cut, not a ramp — so it is still within ``cmd_timeout_s`` plus one step
+after its controller went silent. The fence is a wall: a step that would cross it is not
+taken (the robot stops, a fence contact is counted). Obstacles are not walls: overlaps with
+them (and between robots) are counted as collisions and reported in ``/diagnostics``.
+"""
+from __future__ import annotations
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Pose, PoseArray, Twist
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+from sensor_msgs.msg import NavSatFix, NavSatStatus
+
+from herd_ros.control import kinematics as kin
+from herd_ros.control.safety import Fence, Obstacles
+from herd_ros.errors import HerdInputError
+from herd_ros.ingest.geodesy import enu_to_geodetic
+from herd_ros.model.model_file import check_agent_id
+from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, diagnostic_array,
+                                       diagnostic_status, run_node)
+
+DEFAULTS = {
+    'robots': ['robot_1', 'robot_2', 'robot_3'],
+    'kinematics': 'holonomic',
+    'rate_hz': 20.0,
+    'initial_poses': [],
+    'max_speed': 1.0,
+    'max_accel': 2.0,
+    'max_yaw_rate': 2.0,
+    'cmd_timeout_s': 1.0,
+    'obstacles': [],
+    'fence': [],
+    'robot_radius': 0.3,
+    'datum': [27.0153, -108.7937, 0.0],
+    'frame_id': 'map',
+    'gps_noise_std': 0.0,
+    'fix_rate_hz': 1.0,
+    'seed': 0,
+    'diagnostics_period_s': 1.0,
+}
+
+
+def declare_parameters(node: Node, defaults: dict) -> dict:
+    """Declare every parameter (dynamic typing: ``1`` is accepted for ``1.0``), return values.
+
+    Parameters already declared from overrides keep their given value.
+    """
+    dynamic = ParameterDescriptor(dynamic_typing=True)
+    values = {}
+    for name, default in defaults.items():
+        if not node.has_parameter(name):
+            node.declare_parameter(name, default, dynamic)
+        value = node.get_parameter(name).value
+        values[name] = default if value is None else value
+    return values
+
+
+def yaw_to_quaternion(yaw: float):
+    return 0.0, 0.0, float(np.sin(yaw / 2.0)), float(np.cos(yaw / 2.0))
+
+
+class FleetSimConfig:
+    """Validated fleet_sim parameters (raises :class:`ParameterError` naming the parameter)."""
+
+    def __init__(self, p: dict):
+        try:
+            self.robots = [check_agent_id(r) for r in p['robots']]
+        except HerdInputError as exc:
+            raise ParameterError(f'robots: {exc}') from None
+        if not self.robots or len(set(self.robots)) != len(self.robots):
+            raise ParameterError('robots must be a non-empty list of distinct names')
+        if p['kinematics'] not in kin.KINEMATICS:
+            raise ParameterError(f'kinematics must be holonomic or unicycle, got '
+                                 f'{p["kinematics"]!r}')
+        self.kinematics = p['kinematics']
+        for name in ('rate_hz', 'max_speed', 'max_accel', 'max_yaw_rate', 'cmd_timeout_s',
+                     'fix_rate_hz', 'diagnostics_period_s'):
+            value = float(p[name])
+            if not (np.isfinite(value) and value > 0):
+                raise ParameterError(f'{name} must be a positive number, got {p[name]!r}')
+            setattr(self, name, value)
+        for name in ('robot_radius', 'gps_noise_std'):
+            value = float(p[name])
+            if not (np.isfinite(value) and value >= 0):
+                raise ParameterError(f'{name} must be ≥ 0, got {p[name]!r}')
+            setattr(self, name, value)
+        n = len(self.robots)
+        poses = np.asarray(list(p['initial_poses']), dtype=float)
+        if poses.size == 0:
+            poses = np.column_stack([2.0 * np.arange(n), np.zeros(n), np.zeros(n)])
+        elif poses.size != 3 * n or not np.isfinite(poses).all():
+            raise ParameterError(f'initial_poses needs x, y, yaw for each of the {n} robots '
+                                 f'({3 * n} finite numbers), got {poses.size}')
+        self.initial_poses = poses.reshape(n, 3)
+        try:
+            self.obstacles = Obstacles.from_flat(p['obstacles'])
+            self.fence = Fence.from_flat(p['fence'])
+        except HerdInputError as exc:
+            raise ParameterError(str(exc)) from None
+        if self.fence is not None and not self.fence.contains(self.initial_poses[:, :2]).all():
+            raise ParameterError('initial_poses: every robot must start inside the fence')
+        datum = [float(x) for x in p['datum']]
+        if len(datum) not in (2, 3) or not np.isfinite(datum).all() or abs(datum[0]) > 90:
+            raise ParameterError(f'datum must be [lat, lon] or [lat, lon, alt] in degrees, '
+                                 f'got {p["datum"]!r}')
+        self.datum = datum + [0.0] * (3 - len(datum))
+        self.frame_id = str(p['frame_id'])
+        self.seed = int(p['seed'])
+
+
+class FleetSim(Node):
+    def __init__(self):
+        super().__init__('fleet_sim')
+        self.cfg = cfg = FleetSimConfig(declare_parameters(self, DEFAULTS))
+        n = len(cfg.robots)
+        self.state = kin.FleetState.at_rest(cfg.initial_poses)
+        self.command = np.zeros((n, 3))                  # v_x, v_y, ω (body frame)
+        self.command_time = np.full(n, np.nan)           # node-clock seconds of the last command
+        self.yaw_rate = np.zeros(n)                      # realised ω of the last step
+        self.rng = np.random.default_rng(cfg.seed)
+        self.collisions = np.zeros(n, dtype=np.int64)    # onsets of overlap (obstacles, robots)
+        self.fence_contacts = np.zeros(n, dtype=np.int64)
+        self.stale_events = np.zeros(n, dtype=np.int64)
+        self._overlap = np.zeros(n, bool)
+        self._was_stale = np.ones(n, bool)
+        self.odom_pubs = [self.create_publisher(Odometry, f'/fleet/{r}/odom', 10)
+                          for r in cfg.robots]
+        self.fix_pubs = [self.create_publisher(NavSatFix, f'/fleet/{r}/fix', 10)
+                         for r in cfg.robots]
+        self.poses_pub = self.create_publisher(PoseArray, '/fleet/poses', 10)
+        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        for k, r in enumerate(cfg.robots):
+            self.create_subscription(Twist, f'/fleet/{r}/cmd_vel',
+                                     lambda msg, k=k: self.on_cmd(k, msg), 10)
+        self._last_step = None
+        self._last_fix = -np.inf
+        self._last_diag = -np.inf
+        self.create_timer(1.0 / cfg.rate_hz, self.step)
+        self.get_logger().info(f'{n} {cfg.kinematics} robots at {cfg.rate_hz:g} Hz: '
+                               f'{", ".join(cfg.robots)}')
+
+    def now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def on_cmd(self, k: int, msg: Twist):
+        self.command[k] = (msg.linear.x, msg.linear.y, msg.angular.z)
+        self.command_time[k] = self.now_s()
+
+    def step(self):
+        cfg = self.cfg
+        now = self.now_s()
+        h = 0.0 if self._last_step is None else min(max(now - self._last_step, 0.0),
+                                                    5.0 / cfg.rate_hz)
+        self._last_step = now
+        with np.errstate(invalid='ignore'):
+            stale = ~(now - self.command_time <= cfg.cmd_timeout_s)
+        self.stale_events += stale & ~self._was_stale
+        self._was_stale = stale
+        cmd = np.where(stale[:, None], 0.0, self.command)
+        if h > 0:
+            self.advance(cmd, stale, h)
+        self.publish(now)
+
+    def advance(self, cmd, stale, h):
+        cfg, old = self.cfg, self.state
+        if cfg.kinematics == 'holonomic':
+            new = kin.step_holonomic(old, cmd[:, :2], cmd[:, 2], h, cfg.max_speed, cfg.max_accel,
+                                     cfg.max_yaw_rate)
+        else:
+            new = kin.step_unicycle(old, cmd[:, 0], cmd[:, 2], h, cfg.max_speed, cfg.max_accel,
+                                    cfg.max_yaw_rate)
+        new.velocity[stale] = 0.0                        # watchdog: stale commands cut the drive
+        new.positions[stale] = old.positions[stale]
+        if cfg.fence is not None:
+            t, _ = cfg.fence.first_crossing(old.positions, new.positions)
+            blocked = np.isfinite(t)
+            self.fence_contacts += blocked
+            new.positions[blocked] = old.positions[blocked]
+            new.velocity[blocked] = 0.0
+        self.yaw_rate = kin.wrap_angle(new.yaw - old.yaw) / h
+        self.state = new
+        overlap = np.zeros(len(cfg.robots), bool)
+        if len(cfg.obstacles):
+            overlap |= cfg.obstacles.collisions(new.positions, cfg.robot_radius) > 0
+        d = np.sqrt(((new.positions[:, None] - new.positions[None]) ** 2).sum(-1))
+        np.fill_diagonal(d, np.inf)
+        overlap |= (d < 2 * cfg.robot_radius).any(axis=1)
+        self.collisions += overlap & ~self._overlap
+        self._overlap = overlap
+
+    def publish(self, now: float):
+        cfg, s = self.cfg, self.state
+        stamp = self.get_clock().now().to_msg()
+        body = s.body_velocity
+        poses = PoseArray()
+        poses.header.stamp = stamp
+        poses.header.frame_id = cfg.frame_id
+        for k, robot in enumerate(cfg.robots):
+            pose = Pose()
+            pose.position.x, pose.position.y = float(s.positions[k, 0]), float(s.positions[k, 1])
+            q = yaw_to_quaternion(s.yaw[k])
+            (pose.orientation.x, pose.orientation.y, pose.orientation.z,
+             pose.orientation.w) = q
+            poses.poses.append(pose)
+            odom = Odometry()
+            odom.header.stamp = stamp
+            odom.header.frame_id = cfg.frame_id
+            odom.child_frame_id = f'{robot}/base_link'
+            odom.pose.pose = pose
+            odom.twist.twist.linear.x = float(body[k, 0])
+            odom.twist.twist.linear.y = float(body[k, 1])
+            odom.twist.twist.angular.z = float(self.yaw_rate[k])
+            self.odom_pubs[k].publish(odom)
+        self.poses_pub.publish(poses)
+        if now - self._last_fix >= 1.0 / cfg.fix_rate_hz - 1e-9:
+            self._last_fix = now
+            self.publish_fixes(stamp)
+        if now - self._last_diag >= cfg.diagnostics_period_s - 1e-9:
+            self._last_diag = now
+            self.publish_diagnostics(now)
+
+    def publish_fixes(self, stamp):
+        cfg = self.cfg
+        noise = self.rng.normal(0.0, cfg.gps_noise_std, size=self.state.positions.shape) \
+            if cfg.gps_noise_std > 0 else 0.0
+        e, n = (self.state.positions + noise).T
+        lat, lon, alt = enu_to_geodetic(e, n, np.zeros_like(e), *cfg.datum)
+        var = cfg.gps_noise_std ** 2
+        for k, robot in enumerate(cfg.robots):
+            fix = NavSatFix()
+            fix.header.stamp = stamp
+            fix.header.frame_id = f'{robot}/gps'
+            fix.status.status = NavSatStatus.STATUS_FIX
+            fix.status.service = NavSatStatus.SERVICE_GPS
+            fix.latitude, fix.longitude, fix.altitude = float(lat[k]), float(lon[k]), float(alt[k])
+            fix.position_covariance = [var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, 4.0 * var]
+            fix.position_covariance_type = (NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN if var > 0
+                                            else NavSatFix.COVARIANCE_TYPE_UNKNOWN)
+            self.fix_pubs[k].publish(fix)
+
+    def publish_diagnostics(self, now: float):
+        cfg = self.cfg
+        with np.errstate(invalid='ignore'):
+            stale = ~(now - self.command_time <= cfg.cmd_timeout_s)
+        statuses = []
+        for k, robot in enumerate(cfg.robots):
+            level = WARN if (stale[k] or self._overlap[k]) else OK
+            message = ('colliding' if self._overlap[k] else
+                       'commands stale: stopped' if stale[k] else 'ok')
+            statuses.append(diagnostic_status(
+                f'fleet_sim: {robot}', level, message,
+                {'collisions': int(self.collisions[k]),
+                 'fence_contacts': int(self.fence_contacts[k]),
+                 'stale_command_events': int(self.stale_events[k]),
+                 'command_stale': bool(stale[k]),
+                 'x': float(self.state.positions[k, 0]), 'y': float(self.state.positions[k, 1])},
+                hardware_id=robot))
+        statuses.append(diagnostic_status(
+            'fleet_sim', OK, f'{len(cfg.robots)} robots',
+            {'collisions_total': int(self.collisions.sum()),
+             'fence_contacts_total': int(self.fence_contacts.sum()),
+             'robots_stale': int(stale.sum())}))
+        self.diag_pub.publish(diagnostic_array(self, statuses))
 
 
 def main(args=None):
-    raise SystemExit('fleet_sim: not implemented yet')
+    raise SystemExit(run_node(FleetSim, args=args))
+
+
+if __name__ == '__main__':
+    main()

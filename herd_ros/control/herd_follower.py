@@ -1,0 +1,177 @@
+"""Robots that move like the herd: robot k follows the learned law of its assigned animal.
+
+The herd model (Schwager, Anderson & Rus, FSR 2007, eq. 2) per animal i is
+
+    u_i^{τ+1} = a_i u_i^τ + Σ_{j≠i} f_ij(p_i^τ, p_j^τ) + g_i(p_i^τ) + w_i^τ,   w_i ~ N(0, Q_i)
+
+Robot k is assigned animal A(k) and uses that animal's damping a_A(k), field g_A(k) and noise
+Q_A(k); its neighbours are the **other robots**, robot j standing in for animal A(j), so
+
+    u_k^{τ+1} = a_A(k) u_k^τ + Σ_{j≠k} f_{A(k)A(j)}(p_k, p_j) + g_A(k)(p_k) + w_k^τ.
+
+Two robots assigned the same animal have no learned pair law (an animal has no θ with
+itself); they use that animal's mean θ1, θ2 over its neighbours, so they still keep the
+herd's typical spacing instead of ignoring each other.
+
+**Rate vs model step.** The law is a discrete map with step Δt (``model.dt``); the
+controller runs at a period h = 1/rate_hz that need not equal Δt. With α = h/Δt the law is
+advanced by the fraction α of a model step per tick (explicit Euler of the same map in
+model time, which is the law itself at α = 1)::
+
+    u ← u + α [(a − 1) u + Σ_j f(p) + g(p)] + √α L ξ,   L Lᵀ = Q,  ξ ~ N(0, I)
+
+This keeps the fixed points (u* = (Σf + g)/(1 − a)), the relaxation time Δt/(1 − a) in
+seconds and, to first order, the noise variance accumulated per model step (α steps of
+variance αQ add to Q). For α > 1 (a controller slower than the model) the advance is split
+into ⌈α⌉ equal sub-steps, propagating the positions internally by p ← p + (α/n) Δt u, so
+the map stays stable. The velocity state u is the command the controller actually issued
+last tick (after the safety layer), which is the anti-windup: a robot held by the fence
+does not accumulate velocity against it. Positions p are those measured at the tick, so
+the feedback uses the freshest positions (one period fresher than the paper's p^τ; the two
+coincide as α → 0).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from herd_ros.errors import HerdInputError
+from herd_ros.model.herd_model import AgentLaw, HerdModel, pairwise_geometry
+from herd_ros.simulation.herd_simulator import noise_factors
+
+#: Distances below this (m) are treated as this in the repulsion θ2/d (co-located robots).
+MIN_DISTANCE = 1e-3
+
+
+def robot_herd_model(model: HerdModel, assignment: list[str],
+                     robots: list[str] | None = None) -> HerdModel:
+    """A :class:`HerdModel` over robots: robot k carries the law of animal ``assignment[k]``.
+
+    Pair terms come from the animals' pair parameters (θ1, θ2 of A(k) toward A(j)); for two
+    robots on the same animal the mean of A(k)'s θ1, θ2 over its neighbours is used.
+    """
+    assignment = [str(a) for a in assignment]
+    robots = list(robots) if robots is not None else [f'robot_{k + 1}'
+                                                      for k in range(len(assignment))]
+    if len(robots) != len(assignment):
+        raise HerdInputError(f'assignment has {len(assignment)} animals for {len(robots)} robots')
+    unknown = sorted(set(assignment) - set(model.agents))
+    if unknown:
+        raise HerdInputError(f'assignment names animal(s) {", ".join(unknown)} that the model '
+                             f'does not have (model agents: {", ".join(model.agents)})')
+    index = [model.agents.index(a) for a in assignment]
+    n = model.n_agents
+    off = ~np.eye(n, dtype=bool)
+    count = np.maximum(off.sum(1), 1)
+    mean1 = (model.theta1 * off).sum(1) / count
+    mean2 = (model.theta2 * off).sum(1) / count
+    t1 = model.theta1[np.ix_(index, index)]
+    t2 = model.theta2[np.ix_(index, index)]
+    same = np.equal.outer(index, index)
+    t1 = np.where(same, mean1[index][:, None], t1)
+    t2 = np.where(same, mean2[index][:, None], t2)
+    laws = {}
+    for k, robot in enumerate(robots):
+        law = model.laws[assignment[k]]
+        others = [j for j in range(len(robots)) if j != k]
+        laws[robot] = AgentLaw(damping=law.damping, neighbors=[robots[j] for j in others],
+                               theta1=t1[k, others], theta2=t2[k, others], basis=law.basis,
+                               field_u=law.field_u, field_v=law.field_v,
+                               noise_cov=law.noise_cov)
+    return HerdModel(agents=robots, dt=model.dt, laws=laws, frame_id=model.frame_id,
+                     datum=model.datum)
+
+
+class HerdFollower:
+    """Evaluate the assigned laws for a fleet of R robots, vectorised.
+
+    Attributes:
+        model: the robot :class:`HerdModel` (robots as agents), see :func:`robot_herd_model`.
+        damping (R,), theta1 (R, R), theta2 (R, R): the packed law parameters.
+        noise_factor (R, 2, 2): L_k with L_k L_kᵀ = Q_A(k).
+        noise: whether w is drawn.
+    """
+
+    def __init__(self, model: HerdModel, assignment: list[str], robots: list[str] | None = None,
+                 noise: bool = False, seed=None):
+        self.model = robot_herd_model(model, assignment, robots)
+        self.robots = list(self.model.agents)
+        self.dt = float(model.dt)
+        self.damping = self.model.damping
+        self.theta1 = self.model.theta1
+        self.theta2 = self.model.theta2
+        self.noise = bool(noise)
+        self.noise_factor = noise_factors(self.model.noise_cov)
+        self.rng = np.random.default_rng(seed)
+
+    def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
+        """Σ_{j active, j≠k} f_kj(p_k, p_j) + g_k(p_k) for every robot: (R, 2) -> (R, 2).
+
+        Inactive robots (stale odometry, NaN positions) exert nothing on the others.
+        """
+        p = np.asarray(positions, dtype=float).reshape(-1, 2)
+        r = len(p)
+        active = np.ones(r, bool) if active is None else np.asarray(active, bool)
+        active = active & np.isfinite(p).all(-1)
+        p_safe = np.where(active[:, None], p, 0.0)
+        _, dist, unit = pairwise_geometry(p_safe)
+        magnitude = self.theta1 - self.theta2 / np.maximum(dist, MIN_DISTANCE)
+        magnitude = np.where(active[None, :] & ~np.eye(r, dtype=bool), magnitude, 0.0)
+        interaction = (magnitude[..., None] * np.nan_to_num(unit)).sum(-2)
+        return interaction + self.model.environment(p_safe)
+
+    def advance(self, velocity: np.ndarray, positions: np.ndarray, elapsed: float,
+                active: np.ndarray | None = None) -> np.ndarray:
+        """New velocities (R, 2) after ``elapsed`` seconds of the law from u (R, 2) at p (R, 2).
+
+        u ← u + α[(a − 1)u + Σf + g] + √α L ξ in ⌈α⌉ sub-steps, α = elapsed/Δt (module doc).
+        """
+        u = np.asarray(velocity, dtype=float).reshape(-1, 2).copy()
+        p = np.asarray(positions, dtype=float).reshape(-1, 2).copy()
+        alpha = float(elapsed) / self.dt
+        if alpha <= 0:
+            return u
+        steps = int(np.ceil(alpha - 1e-12))
+        beta = alpha / steps
+        for _ in range(steps):
+            change = beta * ((self.damping[:, None] - 1.0) * u + self.drift(p, active))
+            if self.noise:
+                xi = self.rng.standard_normal(u.shape)
+                change += np.sqrt(beta) * np.einsum('kij,kj->ki', self.noise_factor, xi)
+            p = p + beta * self.dt * u
+            u = u + change
+        return u
+
+
+def model_from_parameter_matrix(theta: np.ndarray, agents: list[str], dt: float,
+                                grid) -> HerdModel:
+    """A pairwise :class:`HerdModel` from the estimator's parameter matrix (N, P).
+
+    Row i is θ_i in the order of DESIGN.md, [a_i, θ1_i·, θ2_i·, θu_i·, θv_i·], the
+    neighbours being the other agents in ``agents`` order, and the field on **every** centre
+    of ``grid`` (a :class:`~herd_ros.model.rbf_field.FieldGrid`, σ = 2/3 spacing, no pruning),
+    so P = 1 + 2(N − 1) + 2K with K = nx·ny. The topic carries no Q, so noise_cov is zero.
+    """
+    from herd_ros.model.rbf_field import RbfBasis
+
+    theta = np.asarray(theta, dtype=float)
+    n = len(agents)
+    basis = RbfBasis.from_grid(grid)
+    k = basis.size
+    width = 1 + 2 * (n - 1) + 2 * k
+    if theta.shape != (n, width):
+        got = ' x '.join(str(d) for d in theta.shape)
+        raise HerdInputError(f'/herd/model/params: expected {n} agents x {width} parameters '
+                             f'(1 + 2·{n - 1} pair + 2·{k} field for a {grid.nx}x{grid.ny} '
+                             f'grid), got {got}')
+    if not np.isfinite(theta).all():
+        raise HerdInputError('/herd/model/params: parameters contain NaN or inf')
+    laws = {}
+    m = n - 1
+    for i, agent in enumerate(agents):
+        row = theta[i]
+        laws[agent] = AgentLaw(damping=float(row[0]),
+                               neighbors=[a for a in agents if a != agent],
+                               theta1=row[1:1 + m], theta2=row[1 + m:1 + 2 * m], basis=basis,
+                               field_u=row[1 + 2 * m:1 + 2 * m + k],
+                               field_v=row[1 + 2 * m + k:1 + 2 * m + 2 * k])
+    return HerdModel(agents=list(agents), dt=float(dt), laws=laws)

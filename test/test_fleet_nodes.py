@@ -1,0 +1,254 @@
+"""fleet_sim and controller as separate processes (installed console scripts, loopback DDS).
+
+The test process listens (and for the live-model test, talks) with its own rclpy context on
+the subprocesses' domain. Safety checks: commanded speed ≤ max_speed, robots stay inside the
+fence (which only the controller knows: the simulator has none, so nothing else holds them),
+stale odometry -> zero commands, stale commands -> robots stop, robots not owned are never
+commanded.
+"""
+import math
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Twist
+from nav_msgs.msg import Odometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+from herd_ros.model.model_file import save_model
+from herd_ros.synthesis.known_truth import make_truth_model
+
+CONFIG = Path(__file__).resolve().parents[1] / 'config'
+FENCE = [-4.0, -4.0, 4.0, -4.0, 4.0, 4.0, -4.0, 4.0]
+POSES = [-1.0, 0.0, 0.0, 1.0, 0.0, 1.57, 0.0, 1.5, -1.57]
+
+
+def flag(name, values):
+    return f'{name}:=[{", ".join(str(v) for v in values)}]'
+
+
+class Listener:
+    """An rclpy context + node on the subprocesses' domain, recording what it hears."""
+
+    def __init__(self, env):
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=int(env['ROS_DOMAIN_ID']))
+        self.node = Node('fleet_test_listener', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.log = {}
+
+    def record(self, msg_type, topic):
+        entries = self.log.setdefault(topic, [])
+        self.node.create_subscription(msg_type, topic,
+                                      lambda m: entries.append((time.time(), m)), 50)
+        return entries
+
+    def spin(self, seconds, until=None):
+        end = time.time() + seconds
+        while time.time() < end:
+            self.executor.spin_once(timeout_sec=0.02)
+            if until is not None and until():
+                return True
+        return until is None
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def start(cmd, env, log_path):
+    return subprocess.Popen(cmd, env=env, stdout=open(log_path, 'w'), stderr=subprocess.STDOUT)
+
+
+def stop(proc, timeout=5.0):
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture
+def graph(ros_env, console_script, tmp_path):
+    """Start processes with ``graph.start(name, *ros_args)``; all are stopped afterwards."""
+    procs = []
+    model_path = tmp_path / 'model.yaml'
+    save_model(make_truth_model(3, seed=1), model_path)
+
+    class Graph:
+        env = ros_env
+        model = model_path
+
+        def start(self, name, *ros_args):
+            proc = start([console_script(name), '--ros-args', *ros_args], ros_env,
+                         tmp_path / f'{name}.log')
+            procs.append(proc)
+            return proc
+
+        def output(self, name):
+            return (tmp_path / f'{name}.log').read_text()
+
+    listener = Listener(ros_env)
+    try:
+        yield Graph(), listener
+    finally:
+        for proc in procs:
+            stop(proc)
+        listener.close()
+
+
+def odom_xy(msg):
+    return msg.pose.pose.position.x, msg.pose.pose.position.y
+
+
+def odom_speed(msg):
+    return math.hypot(msg.twist.twist.linear.x, msg.twist.twist.linear.y)
+
+
+def stamp(msg):
+    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+
+
+def sim_args(kinematics='holonomic'):
+    return ['-p', 'robots:=[r1, r2, r3]', '-p', flag('initial_poses', POSES),
+            '-p', f'kinematics:={kinematics}', '-p', 'max_speed:=2.0', '-p', 'max_accel:=4.0',
+            '-p', 'rate_hz:=20.0', '-p', 'cmd_timeout_s:=1.0']
+
+
+def controller_args(graph, kinematics='holonomic'):
+    return ['--params-file', str(graph.model), '-p', 'robots:=[r1, r2]',
+            '-p', 'other_robots:=[r3]', '-p', f'kinematics:={kinematics}',
+            '-p', 'max_speed:=0.8', '-p', flag('fence', FENCE), '-p', 'fence_margin:=0.3',
+            '-p', 'rate_hz:=10.0', '-p', 'odom_timeout_s:=0.5']
+
+
+def test_robots_move_within_speed_and_fence_and_unowned_robots_are_left_alone(graph):
+    g, ear = graph
+    cmds = {r: ear.record(Twist, f'/fleet/{r}/cmd_vel') for r in ('r1', 'r2', 'r3')}
+    odom = {r: ear.record(Odometry, f'/fleet/{r}/odom') for r in ('r1', 'r2', 'r3')}
+    g.start('fleet_sim', *sim_args())
+    g.start('controller', *controller_args(g))
+
+    def near_fence():
+        xy = [odom_xy(m) for r in ('r1', 'r2') for _, m in odom[r][-1:]]
+        return len(xy) == 2 and max(max(abs(x), abs(y)) for x, y in xy) > 3.4
+    assert ear.spin(25.0, until=near_fence), 'robots never reached the fence'
+    ear.spin(3.0)                                     # keep pushing against it a while
+
+    for r in ('r1', 'r2'):
+        speeds = [math.hypot(m.linear.x, m.linear.y) for _, m in cmds[r]]
+        assert len(speeds) > 20 and max(speeds) <= 0.8 + 1e-9
+        xy = np.array([odom_xy(m) for _, m in odom[r]])
+        assert np.abs(xy).max() < 4.0, f'{r} left the fence'
+        assert np.hypot(*(xy[-1] - xy[0])) > 1.0, f'{r} did not move'
+    assert cmds['r3'] == [], 'the controller commanded a robot it does not own'
+    r3 = np.array([odom_xy(m) for _, m in odom['r3']])
+    np.testing.assert_allclose(r3, r3[:1].repeat(len(r3), 0), atol=1e-9)
+
+
+def test_stale_commands_stop_unicycles_within_cmd_timeout(graph):
+    g, ear = graph
+    odom = {r: ear.record(Odometry, f'/fleet/{r}/odom') for r in ('r1', 'r2')}
+    cmds = ear.record(Twist, '/fleet/r1/cmd_vel')
+    g.start('fleet_sim', *sim_args('unicycle'))
+    ctl = g.start('controller', *controller_args(g, 'unicycle'))
+
+    def moving():
+        return any(odom[r] and odom_speed(odom[r][-1][1]) > 0.1 for r in odom)
+    assert ear.spin(20.0, until=moving), 'robots never moved'
+    ear.spin(1.0)
+    assert all(abs(m.linear.x) <= 0.8 + 1e-9 and m.linear.y == 0.0 for _, m in cmds)
+    stop(ctl)
+    t_exit = time.time()
+    ear.spin(2.0)
+    after = [m for r in odom for t, m in odom[r] if stamp(m) > t_exit + 1.0 + 0.15]
+    assert len(after) > 10
+    assert max(odom_speed(m) for m in after) == 0.0
+
+
+def test_stale_odometry_gives_zero_commands_within_one_period(graph):
+    g, ear = graph
+    cmds = ear.record(Twist, '/fleet/r1/cmd_vel')
+    sim = g.start('fleet_sim', '--params-file', str(CONFIG / 'fleet_sim.yaml'), *sim_args())
+    g.start('controller', *controller_args(g))
+    assert ear.spin(20.0, until=lambda: any(
+        math.hypot(m.linear.x, m.linear.y) > 0.05 for _, m in cmds)), 'no motion commanded'
+    stop(sim)
+    t_exit = time.time()
+    ear.spin(1.5)
+    late = [m for t, m in cmds if t > t_exit + 0.5 + 0.1 + 0.15]   # timeout + period + slack
+    assert len(late) >= 5
+    assert all(m.linear.x == m.linear.y == m.angular.z == 0.0 for m in late)
+
+
+def test_controller_starts_from_a_saved_model_file_alone(graph):
+    g, ear = graph
+    cmds = ear.record(Twist, '/fleet/robot_1/cmd_vel')
+    diags = ear.record(DiagnosticArray, '/diagnostics')
+    proc = g.start('controller', '--params-file', str(g.model))
+    assert ear.spin(15.0, until=lambda: len(cmds) >= 5 and diags)
+    assert proc.poll() is None, g.output('controller')
+    # no odometry at all: every command is an explicit stop
+    assert all(m.linear.x == m.linear.y == m.angular.z == 0.0 for _, m in cmds)
+    text = ' '.join(s.message for _, d in diags for s in d.status)
+    assert 'model of 3 animals' in text
+
+
+def test_live_model_from_the_estimator_topic(graph):
+    g, ear = graph
+    cmds = {r: ear.record(Twist, f'/fleet/{r}/cmd_vel') for r in ('r1', 'r2')}
+    g.start('controller', '--params-file', str(CONFIG / 'controller.yaml'),
+            '-p', 'robots:=[r1, r2]', '-p', 'model_source:=topic',
+            '-p', 'agents:=[agent_1, agent_2, agent_3]', '-p', 'dt:=1.0',
+            '-p', 'field_grid:=[6, 6]', '-p', flag('field_bounds', [-150.0, 150.0, -150.0, 150.0]),
+            '-p', 'max_speed:=0.8')
+    model = make_truth_model(3, seed=1)
+    theta = np.stack([model.laws[a].theta for a in model.agents])
+    params = ear.node.create_publisher(Float64MultiArray, '/herd/model/params', 10)
+    odom_pubs = {r: ear.node.create_publisher(Odometry, f'/fleet/{r}/odom', 10)
+                 for r in ('r1', 'r2')}
+
+    def publish_odom():
+        for r, x in (('r1', -1.0), ('r2', 1.0)):   # 2 m apart: well inside repulsion
+            msg = Odometry()
+            msg.header.frame_id = 'map'
+            msg.pose.pose.position.x = x
+            msg.pose.pose.orientation.w = 1.0
+            odom_pubs[r].publish(msg)
+    ear.node.create_timer(0.05, publish_odom)
+    assert ear.spin(15.0, until=lambda: len(cmds['r1']) > 5)
+    assert all(m.linear.x == 0.0 for _, m in cmds['r1']), 'moved before any model arrived'
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label='agent', size=3, stride=theta.size),
+                      MultiArrayDimension(label='param', size=theta.shape[1],
+                                          stride=theta.shape[1])]
+    msg.data = theta.ravel().tolist()
+    params.publish(msg)
+    ear.node.create_timer(0.5, lambda: params.publish(msg))
+    assert ear.spin(10.0, until=lambda: cmds['r1'][-1][1].linear.x < -0.05)
+    # robots 2 m apart repel: r1 is pushed west, r2 east
+    assert cmds['r2'][-1][1].linear.x > 0.05
+
+
+def test_bad_parameters_exit_with_one_clear_line(ros_env, console_script):
+    for name, args, needle in [
+            ('fleet_sim', ['-p', 'kinematics:=tank'], 'kinematics'),
+            ('fleet_sim', ['-p', 'robots:=[a, b]', '-p', 'initial_poses:=[0.0, 1.0]'],
+             'initial_poses'),
+            ('controller', ['-p', 'mode:=dance'], 'mode'),
+            ('controller', [], 'params-file')]:
+        out = subprocess.run([console_script(name), '--ros-args', *args], env=ros_env,
+                             capture_output=True, text=True, timeout=30)
+        assert out.returncode == 2, out.stderr
+        assert needle in out.stderr and 'Traceback' not in out.stderr
