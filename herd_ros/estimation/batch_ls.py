@@ -60,7 +60,7 @@ class LeastSquaresFit:
         return float(np.sqrt((self.residuals ** 2).sum(-1).mean()))
 
 
-def tall_r(M: np.ndarray, chunk: int = 8192) -> np.ndarray:
+def tall_r(M: np.ndarray, chunk: int = 16384) -> np.ndarray:
     """R factor of a tall matrix by TSQR (Demmel et al. 2012): QR of row blocks, then of
     the stacked block R's. Same R as a one-shot Householder QR (up to row signs), without
     forming Q, and cache-friendly for millions of rows."""
