@@ -1,5 +1,293 @@
-"""`estimator` node (not implemented yet)."""
+"""`estimator` node: learns the herd model online from `/herd/poses` (recursive least squares).
+
+Subscribes:
+    /herd/poses (geometry_msgs/PoseArray): one snapshot per herd-clock tick, poses in the
+        order of ``agents``, header stamp = the tick; a pose with NaN position = agent
+        missing or stale in that snapshot (its update is skipped).
+Publishes:
+    /herd/model/params (std_msgs/Float64MultiArray): θ, dims ``agent`` × ``param``, each row
+        θ_i in the order of DESIGN.md ([damping, theta1.., theta2.., field_u.., field_v..];
+        shared law: [damping, profile.., field_u.., field_v..]).
+    /herd/model/prediction (geometry_msgs/PoseArray): one-step-ahead positions (eq. 8),
+        stamped with the tick they predict.
+    /herd/model/markers (visualization_msgs/MarkerArray, frame ``map``): field arrows at
+        the centres (mean over agents), the centres, the predictions.
+    /diagnostics: per agent samples, residual RMS, lag-1 whiteness, condition of P; clock
+        problems (a step ≠ dt, time going backwards) as WARN.
+Services (std_srvs/Trigger): ~/save_model (writes ``model_out``), ~/reset.
+Checkpoints: the whole state to ``checkpoint_path`` (atomic write-then-rename) every
+``checkpoint_period_s`` and on shutdown; resumed at start when present and compatible.
+
+The numerics are :class:`herd_ros.estimation.online_fit.OnlineHerdEstimator`; this node only
+converts messages and parameters.
+"""
+from __future__ import annotations
+
+import array
+import math
+from pathlib import Path
+
+import numpy as np
+from geometry_msgs.msg import Point, Pose, PoseArray
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import Marker, MarkerArray
+
+from diagnostic_msgs.msg import DiagnosticArray
+from herd_ros.errors import HerdInputError
+from herd_ros.estimation.online_fit import LAWS, OnlineHerdEstimator
+from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, diagnostic_array,
+                                       diagnostic_status, run_node, seconds_to_stamp,
+                                       stamp_to_seconds)
+
+DEFAULTS = {
+    'agents': Parameter.Type.STRING_ARRAY,   # required
+    'dt': Parameter.Type.DOUBLE,             # required
+    'law': 'pairwise',
+    'forgetting': 1.0,
+    'p0': 1.0e6,
+    'field_grid': [6, 6],
+    'field_bounds': [-75.0, 75.0, -75.0, 75.0],
+    'min_visits': 10,
+    'interaction_radius': 60.0,
+    'profile_size': 6,
+    'model_out': 'herd_model.yaml',
+    'checkpoint_path': '',
+    'checkpoint_period_s': 60.0,
+    'diagnostics_period_s': 1.0,
+    'frame_id': 'map',
+}
+
+
+def read_parameters(node: Node) -> dict:
+    """Declare and validate every parameter; ParameterError names the one at fault."""
+    values = {}
+    for name, default in DEFAULTS.items():
+        node.declare_parameter(name, default)
+        try:
+            values[name] = node.get_parameter(name).value
+        except Exception:  # rclpy: ParameterUninitializedException
+            values[name] = None
+    agents = values['agents']
+    if not agents or len(set(agents)) != len(agents):
+        raise ParameterError('parameter agents must be a non-empty list of distinct agent ids '
+                             '(the order of the poses in /herd/poses)')
+    if values['dt'] is None or not (math.isfinite(values['dt']) and values['dt'] > 0):
+        raise ParameterError(f'parameter dt must be the herd clock step in seconds (> 0), got '
+                             f'{values["dt"]}')
+    if values['law'] not in LAWS:
+        raise ParameterError(f'parameter law must be one of {", ".join(LAWS)}, got '
+                             f'{values["law"]!r}')
+    if values['law'] == 'pairwise' and len(agents) < 2:
+        raise ParameterError('law pairwise needs at least two agents')
+    if not 0 < values['forgetting'] <= 1:
+        raise ParameterError(f'parameter forgetting must be in (0, 1], got {values["forgetting"]}')
+    if not (math.isfinite(values['p0']) and values['p0'] > 0):
+        raise ParameterError(f'parameter p0 must be a positive number, got {values["p0"]}')
+    grid = list(values['field_grid'])
+    if len(grid) != 2 or min(grid) < 1:
+        raise ParameterError(f'parameter field_grid must be [nx, ny] with nx, ny ≥ 1, got {grid}')
+    b = [float(v) for v in values['field_bounds']]
+    if len(b) != 4 or not (b[0] < b[1] and b[2] < b[3]):
+        raise ParameterError(f'parameter field_bounds must be [xmin, xmax, ymin, ymax] with '
+                             f'xmin < xmax and ymin < ymax, got {b}')
+    for name in ('checkpoint_period_s', 'diagnostics_period_s', 'interaction_radius'):
+        if not values[name] > 0:
+            raise ParameterError(f'parameter {name} must be positive, got {values[name]}')
+    if values['profile_size'] < 1 or values['min_visits'] < 0:
+        raise ParameterError('parameters profile_size must be ≥ 1 and min_visits ≥ 0')
+    values['field_grid'], values['field_bounds'] = grid, b
+    return values
+
+
+class Estimator(Node):
+    """Messages in, :class:`OnlineHerdEstimator` in the middle, messages out."""
+
+    def __init__(self):
+        super().__init__('estimator')
+        self.cfg = cfg = read_parameters(self)
+        self.core = OnlineHerdEstimator(
+            cfg['agents'], cfg['dt'], cfg['law'], cfg['field_grid'], cfg['field_bounds'],
+            cfg['forgetting'], cfg['p0'], cfg['min_visits'], cfg['interaction_radius'],
+            cfg['profile_size'])
+        self.counts = {'snapshots': 0, 'updates': 0, 'gaps': 0, 'backwards': 0}
+        self.clock_warning = ''
+        self._resume()
+        qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        self.params_pub = self.create_publisher(Float64MultiArray, '/herd/model/params', 10)
+        self.pred_pub = self.create_publisher(PoseArray, '/herd/model/prediction', 10)
+        self.marker_pub = self.create_publisher(MarkerArray, '/herd/model/markers', 1)
+        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_subscription(PoseArray, '/herd/poses', self.on_poses, qos)
+        self.create_service(Trigger, '~/save_model', self.on_save_model)
+        self.create_service(Trigger, '~/reset', self.on_reset)
+        self.create_timer(cfg['diagnostics_period_s'], self.publish_status)
+        if cfg['checkpoint_path']:
+            self.create_timer(cfg['checkpoint_period_s'], self.write_checkpoint)
+
+    # -- start and stop --------------------------------------------------------------------
+    def _resume(self):
+        path = self.cfg['checkpoint_path']
+        if not path:
+            return
+        try:
+            if self.core.load_checkpoint(path):
+                self.get_logger().info(f'resumed from checkpoint {path} '
+                                       f'({int(self.core.samples.max())} samples)')
+        except HerdInputError as exc:
+            self.get_logger().warning(f'{exc}; starting afresh (it will be overwritten)')
+
+    def write_checkpoint(self):
+        try:
+            self.core.save_checkpoint(self.cfg['checkpoint_path'])
+        except OSError as exc:
+            self.get_logger().error(f'cannot write checkpoint: {exc}')
+
+    def on_shutdown(self):
+        if self.cfg['checkpoint_path']:
+            self.write_checkpoint()
+
+    # -- data ------------------------------------------------------------------------------
+    def on_poses(self, msg: PoseArray):
+        n = len(self.core.agents)
+        if len(msg.poses) != n:
+            self._warn(f'/herd/poses has {len(msg.poses)} poses, expected {n} (agents): ignored')
+            return
+        t = stamp_to_seconds(msg.header.stamp)
+        positions = np.array([[p.position.x, p.position.y] for p in msg.poses])
+        result = self.core.add_snapshot(t, positions)
+        self.counts['snapshots'] += 1
+        if result.status == 'backwards':
+            self.counts['backwards'] += 1
+            self._warn(f'snapshot at {t:.3f} s is not after the previous one: ignored')
+            return
+        if result.status == 'gap':
+            self.counts['gaps'] += 1
+            self._warn(f'snapshot step {result.step:.3f} s differs from dt {self.core.dt:g} s: '
+                       f'the pair is not used')
+        if result.status == 'updated':
+            self.counts['updates'] += 1
+            self.publish_params(msg.header.stamp)
+        self.publish_prediction()
+
+    def _warn(self, text: str):
+        self.clock_warning = text
+        self.get_logger().warning(text, throttle_duration_sec=5.0)
+        self.diag_pub.publish(diagnostic_array(self, [diagnostic_status(
+            'estimator: herd clock', WARN, text, dict(self.counts))]))
+
+    def publish_params(self, stamp=None):
+        theta = self.core.theta
+        n, p = theta.shape
+        msg = Float64MultiArray()
+        msg.layout.dim = [MultiArrayDimension(label='agent', size=n, stride=n * p),
+                          MultiArrayDimension(label='param', size=p, stride=p)]
+        msg.data = array.array('d', theta.ravel())
+        self.params_pub.publish(msg)
+
+    def publish_prediction(self):
+        pred = self.core.predict()
+        if pred is None:
+            return
+        t, positions = pred
+        msg = PoseArray()
+        msg.header.stamp = seconds_to_stamp(t)
+        msg.header.frame_id = self.cfg['frame_id']
+        msg.poses = [_pose(x, y) for x, y in positions]
+        self.pred_pub.publish(msg)
+        self._last_prediction = positions
+
+    # -- status ----------------------------------------------------------------------------
+    def publish_status(self):
+        d = self.core.diagnostics()
+        statuses = [diagnostic_status(
+            'estimator: herd clock', WARN if self.clock_warning else OK,
+            self.clock_warning or 'snapshots on the clock', dict(self.counts))]
+        for i, a in enumerate(self.core.agents):
+            samples = int(d['samples'][i])
+            level = OK if samples > 0 else WARN
+            message = ('learning' if samples > 0 else 'no samples yet')
+            if samples > 50 and not d['white'][i]:
+                message = 'residual not white: the model misses something'
+            statuses.append(diagnostic_status(f'estimator: {a}', level, message, {
+                'samples': samples, 'residual_rms': float(d['residual_rms'][i]),
+                'lag1_autocorrelation': float(d['lag1_autocorrelation'][i]),
+                'white_band_95': float(d['white_band'][i]),
+                'condition_P': float(d['condition'][i])}, hardware_id=a))
+        self.clock_warning = ''
+        self.diag_pub.publish(diagnostic_array(self, statuses))
+        self.publish_markers()
+
+    def publish_markers(self):
+        frame = self.cfg['frame_id']
+        centers = self.core.basis.centers
+        field = self.core.mean_field(centers)
+        spacing = float(np.mean(self.core.grid.spacing))
+        top = float(np.max(np.hypot(field[:, 0], field[:, 1]))) if len(field) else 0.0
+        scale = 0.8 * spacing / top if top > 0 else 0.0
+        markers = [_points_marker(frame, 'centres', 0, centers, 0.2 * spacing,
+                                  ColorRGBA(r=0.6, g=0.6, b=0.6, a=0.8))]
+        for k, (c, g) in enumerate(zip(centers, field)):
+            m = Marker(type=Marker.ARROW, action=Marker.ADD, ns='field', id=k)
+            m.header.frame_id = frame
+            m.points = [Point(x=float(c[0]), y=float(c[1])),
+                        Point(x=float(c[0] + scale * g[0]), y=float(c[1] + scale * g[1]))]
+            m.scale.x, m.scale.y, m.scale.z = 0.05 * spacing, 0.1 * spacing, 0.1 * spacing
+            m.color = ColorRGBA(r=0.1, g=0.4, b=0.9, a=0.9)
+            m.pose.orientation.w = 1.0
+            markers.append(m)
+        pred = getattr(self, '_last_prediction', None)
+        if pred is not None:
+            markers.append(_points_marker(frame, 'predictions', 0, np.nan_to_num(pred),
+                                          0.1 * spacing, ColorRGBA(r=0.9, g=0.3, b=0.1, a=1.0)))
+        self.marker_pub.publish(MarkerArray(markers=markers))
+
+    # -- services --------------------------------------------------------------------------
+    def on_save_model(self, request, response):
+        try:
+            path = self.core.save_model(self.cfg['model_out'], frame_id=self.cfg['frame_id'])
+            response.success, response.message = True, str(Path(path).resolve())
+        except (HerdInputError, OSError) as exc:
+            response.success, response.message = False, str(exc)
+        return response
+
+    def on_reset(self, request, response):
+        self.core.reset()
+        self.get_logger().info('estimator reset: θ = θ₀, P = P₀, counters zero')
+        response.success, response.message = True, 'reset'
+        return response
+
+
+def _pose(x: float, y: float) -> Pose:
+    pose = Pose()
+    pose.position.x, pose.position.y = float(x), float(y)
+    pose.orientation.w = 1.0
+    return pose
+
+
+def _points_marker(frame, ns, mid, points, size, color) -> Marker:
+    m = Marker(type=Marker.SPHERE_LIST, action=Marker.ADD, ns=ns, id=mid)
+    m.header.frame_id = frame
+    m.pose.orientation.w = 1.0
+    m.scale.x = m.scale.y = m.scale.z = float(size)
+    m.color = color
+    m.points = [Point(x=float(x), y=float(y)) for x, y in points]
+    return m
 
 
 def main(args=None):
-    raise SystemExit('estimator: not implemented yet')
+    try:
+        return run_node(Estimator, args=args)
+    except RuntimeError as exc:
+        # Ctrl-C/SIGTERM landing inside rclpy's message take surfaces as this pybind11 error
+        # instead of KeyboardInterrupt; run_node has already run on_shutdown (checkpoint).
+        if 'Unable to convert call argument' in str(exc):
+            return 0
+        raise
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,142 @@
+"""Benchmark: batched RLS of the herd vs padasip's FilterRLS vs a per-agent numpy loop.
+
+Agent-updates per second (one agent, one snapshot: its x and y rows) for herds of 3, 30 and
+300 animals with the pairwise law (p = 1 + 2(N−1) + 2K) and 1 000 and 10 000 animals with
+the shared law (p = 1 + B + 2K), K = 36 field centres (6x6 grid), B = 6. Ratios in one run.
+
+- batched: :class:`herd_ros.estimation.rls.HerdRLS` (directional forgetting, Joseph form),
+  all agents in one call (herds with p > 400 in chunks of 50 agents to bound memory).
+- padasip: ``padasip.filters.FilterRLS``, one filter per agent and component (x, y), each
+  adapted once per snapshot (benchmark-only dependency: ``pip install padasip``).
+- numpy loop: the textbook covariance-form RLS, one agent at a time.
+The loop baselines are timed on a sample of agents (updates are independent per agent).
+
+Also: the CPU share of one core for a 1 000-animal herd with the shared law at 1 Hz
+(regressors with cKDTree + RLS update, process time per snapshot).
+
+All contenders run single-threaded (OPENBLAS_NUM_THREADS=1): figures per core.
+
+Run: .venv/bin/python test/bench/bench_rls.py [--repeats 5]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')  # one core for every contender
+
+import numpy as np
+
+from herd_ros.estimation.online_fit import OnlineHerdEstimator
+from herd_ros.estimation.rls import HerdRLS
+
+K, B = 36, 6
+LAMBDA = 0.999
+
+
+def numpy_loop_update(theta, P, H, y, lam):
+    """Textbook RLS for one agent: K = P Hᵀ (λI + H P Hᵀ)⁻¹, θ += K e, P = (P − K H P)/λ."""
+    PHt = P @ H.T
+    gain = np.linalg.solve(lam * np.eye(2) + H @ PHt, PHt.T).T
+    theta += gain @ (y - H @ theta)
+    P -= gain @ (H @ P)
+    P /= lam
+    return theta, P
+
+
+def time_until(fn, min_seconds=0.3, min_calls=2):
+    """Seconds per call of fn (runs it until min_seconds and min_calls are reached)."""
+    calls, start = 0, time.perf_counter()
+    while True:
+        fn()
+        calls += 1
+        el = time.perf_counter() - start
+        if el >= min_seconds and calls >= min_calls:
+            return el / calls
+
+
+def rates(n, p, repeats, rng):
+    H = rng.normal(size=(n, 2, p))
+    y = rng.normal(size=(n, 2))
+    chunk = n if p <= 400 else 50
+    rls = HerdRLS(chunk, p, forgetting=LAMBDA, p0=1e3)
+    Hs = [rng.normal(size=(chunk, 2, p)) for _ in range(4)]  # fresh rows every update
+    counter = iter(range(10 ** 9))
+
+    def batched_step():
+        rls.update(Hs[next(counter) % 4], y[:chunk])
+    batched = [chunk / time_until(batched_step) for _ in range(repeats)]
+    sample = min(n, 20 if p < 200 else 3)
+    loop_state = [(np.zeros(p), np.eye(p) * 1e3) for _ in range(sample)]
+
+    def loop():
+        for i in range(sample):
+            numpy_loop_update(*loop_state[i], H[i], y[i], LAMBDA)
+    looped = [sample / time_until(loop) for _ in range(repeats)]
+    try:
+        from padasip.filters import FilterRLS
+    except ImportError:
+        pad = [np.nan]
+    else:
+        psample = min(n, 20 if p < 200 else 2)
+        filters = [(FilterRLS(p, mu=LAMBDA, eps=1e-3), FilterRLS(p, mu=LAMBDA, eps=1e-3))
+                   for _ in range(psample)]
+
+        def padasip_step():
+            for i in range(psample):
+                filters[i][0].adapt(y[i, 0], H[i, 0])
+                filters[i][1].adapt(y[i, 1], H[i, 1])
+        pad = [psample / time_until(padasip_step, min_seconds=0.3, min_calls=1)
+               for _ in range(repeats)]
+    return np.median(batched), np.median(looped), np.median(pad)
+
+
+def cpu_share_1000_shared(repeats, rng):
+    """Process time per 1 Hz snapshot of 1 000 animals (shared law), as a share of one core."""
+    n = 1000
+    agents = [f'a{k}' for k in range(n)]
+    est = OnlineHerdEstimator(agents, 1.0, 'shared', (6, 6), (-500, 500, -500, 500),
+                              forgetting=LAMBDA)
+    p = rng.uniform(-500, 500, size=(n, 2))
+    v = rng.normal(scale=0.5, size=(n, 2))
+    t = 0.0
+    for _ in range(3):  # prime the chain
+        p = p + v + rng.normal(scale=0.1, size=(n, 2))
+        est.add_snapshot(t, p)
+        t += 1.0
+    shares = []
+    for _ in range(repeats):
+        c0 = time.process_time()
+        steps = 5
+        for _ in range(steps):
+            p = p + v + rng.normal(scale=0.1, size=(n, 2))
+            est.add_snapshot(t, p)
+            t += 1.0
+        shares.append((time.process_time() - c0) / steps)  # CPU seconds per 1 s of herd time
+    return float(np.median(shares))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--repeats', type=int, default=5)
+    args = ap.parse_args()
+    rng = np.random.default_rng(0)
+    cases = [('pairwise', 3), ('pairwise', 30), ('pairwise', 300),
+             ('shared', 1000), ('shared', 10000)]
+    print(f'RLS agent-updates per second (median of {args.repeats} repeats; K = {K}, B = {B})')
+    print(f'{"law":>9} {"agents":>7} {"params":>7} {"batched":>11} {"numpy loop":>11} '
+          f'{"padasip":>9} {"vs loop":>8} {"vs padasip":>10}')
+    for law, n in cases:
+        p = 1 + 2 * (n - 1) + 2 * K if law == 'pairwise' else 1 + B + 2 * K
+        b, lo, pa = rates(n, p, args.repeats, rng)
+        print(f'{law:>9} {n:7d} {p:7d} {b:11.0f} {lo:11.0f} {pa:9.1f} {b / lo:7.1f}x '
+              f'{b / pa:9.1f}x')
+    share = cpu_share_1000_shared(args.repeats, rng)
+    print(f'1 000 animals, shared law, 1 Hz: {share * 1e3:.1f} ms CPU per snapshot = '
+          f'{100 * share:.1f} % of one core (regressors + update)')
+    print('reproduce: .venv/bin/python test/bench/bench_rls.py --repeats', args.repeats)
+
+
+if __name__ == '__main__':
+    main()
