@@ -279,14 +279,7 @@ def _points_marker(frame, ns, mid, points, size, color) -> Marker:
 
 
 def main(args=None):
-    try:
-        return run_node(Estimator, args=args)
-    except RuntimeError as exc:
-        # Ctrl-C/SIGTERM landing inside rclpy's message take surfaces as this pybind11 error
-        # instead of KeyboardInterrupt; run_node has already run on_shutdown (checkpoint).
-        if 'Unable to convert call argument' in str(exc):
-            return 0
-        raise
+    return run_node(Estimator, args=args)
 
 
 if __name__ == '__main__':

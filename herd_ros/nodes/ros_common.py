@@ -55,15 +55,27 @@ def _fmt(v) -> str:
     return str(v)
 
 
+_signalled = False
+
+
+def _on_signal(signum, frame):
+    global _signalled
+    _signalled = True
+    raise KeyboardInterrupt
+
+
 def run_node(node_factory, args=None, executor=None) -> int:
     """``rclpy.init`` → build the node → spin until Ctrl-C/SIGTERM → clean shutdown.
 
     A :class:`ParameterError` at start-up is printed as one line and exits with status 2.
     The node's ``on_shutdown()`` (if any) runs before the context is torn down (the
-    estimator writes its checkpoint there).
+    estimator writes its checkpoint there). A signal that lands inside rclpy's C++ message
+    conversion surfaces as a pybind11 ``RuntimeError`` instead of ``KeyboardInterrupt``;
+    after a signal that is a clean stop too.
     """
     rclpy.init(args=args)
-    signal.signal(signal.SIGTERM, lambda *_: _raise_ki())
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
     node = None
     try:
         try:
@@ -78,6 +90,9 @@ def run_node(node_factory, args=None, executor=None) -> int:
             executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        if not _signalled:
+            raise
     finally:
         if node is not None:
             hook = getattr(node, 'on_shutdown', None)
@@ -86,7 +101,3 @@ def run_node(node_factory, args=None, executor=None) -> int:
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
-
-
-def _raise_ki():
-    raise KeyboardInterrupt
