@@ -9,8 +9,10 @@
   ``(1/N) Σ_i (1/(N−1)) Σ_{j≠i} ‖v_i − v_j‖`` (m/s) — how well the swarm is aligned.
 
 The paper compares AMD(t) and AVD(t) of the original swarm with those of the imitation
-simulated from the same initial states; :func:`relative_deviation` is the comparison used in
-the acceptance tests (largest relative gap over the run, of the run-averaged curves).
+simulated from the same initial states; :func:`relative_deviation` (largest pointwise relative
+gap of the run-averaged curves, optionally against a floor) and
+:func:`integrated_relative_deviation` (the gap summed over the run relative to the original's)
+are the comparisons used in the acceptance tests.
 (The paper's wording is terse; this is our reading of it: swarm-level statistics, computed for
 each swarm separately, not distances between matched original/imitation agents.)
 """
@@ -40,10 +42,23 @@ def avd(velocities: np.ndarray) -> np.ndarray:
     return _mean_pairwise_norm(np.asarray(velocities, dtype=float))
 
 
-def relative_deviation(imitation: np.ndarray, original: np.ndarray) -> float:
-    """max_t |imitation(t) − original(t)| / original(t) of two (T,) curves."""
+def relative_deviation(imitation: np.ndarray, original: np.ndarray, floor: float = 0.0) -> float:
+    """max_t |imitation(t) − original(t)| / max(|original(t)|, floor) of two (T,) curves.
+
+    ``floor`` (same unit as the curves) keeps the ratio meaningful where the original
+    decays toward zero — e.g. AVD(t) of a swarm that has aligned, where a pointwise ratio
+    compares differences of centimetres per second. 0 gives the plain pointwise ratio.
+    """
     original = np.asarray(original, dtype=float)
-    return float(np.max(np.abs(np.asarray(imitation) - original) / np.abs(original)))
+    scale = np.maximum(np.abs(original), floor)
+    return float(np.max(np.abs(np.asarray(imitation) - original) / scale))
+
+
+def integrated_relative_deviation(imitation: np.ndarray, original: np.ndarray) -> float:
+    """Σ_t |imitation(t) − original(t)| / Σ_t |original(t)| of two (T,) curves on one uniform
+    time grid: the gap over the run as a fraction of the original's (an L1 ratio)."""
+    original = np.asarray(original, dtype=float)
+    return float(np.sum(np.abs(np.asarray(imitation) - original)) / np.sum(np.abs(original)))
 
 
 def compare_with_imitation(policy, runs) -> dict:

@@ -12,7 +12,8 @@ older than ``odom_timeout_s`` (or never came) gets an explicit zero Twist on tha
 Modes are a seam: :data:`POLICIES` maps a mode name to a class with
 ``from_node(node) -> policy`` (declares and reads its own parameters) and
 ``command(state) -> (R, 2)`` world velocities for every observed robot. ``herd_model`` is
-implemented here; ``flocking`` and ``imitation`` plug in the same way.
+implemented here; ``flocking`` (:mod:`herd_ros.nodes.flocking_mode`) and ``imitation``
+(:mod:`herd_ros.nodes.imitation_mode`) plug in the same way.
 """
 from __future__ import annotations
 
@@ -32,6 +33,8 @@ from herd_ros.errors import HerdInputError
 from herd_ros.model.model_file import check_agent_id, model_from_dict
 from herd_ros.model.rbf_field import FieldGrid
 from herd_ros.nodes.fleet_sim import declare_parameters
+from herd_ros.nodes.flocking_mode import FlockingPolicy
+from herd_ros.nodes.imitation_mode import ImitationPolicyMode
 from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, diagnostic_array,
                                        diagnostic_status, run_node)
 
@@ -202,7 +205,8 @@ class HerdModelPolicy:
 
 
 #: Mode name -> policy class (``from_node(node)``, ``command(state)``).
-POLICIES = {'herd_model': HerdModelPolicy}
+POLICIES = {'herd_model': HerdModelPolicy, 'flocking': FlockingPolicy,
+            'imitation': ImitationPolicyMode}
 
 
 def yaw_from_quaternion(q) -> float:
