@@ -143,13 +143,14 @@ class HerdFollower:
 
 
 def model_from_parameter_matrix(theta: np.ndarray, agents: list[str], dt: float,
-                                grid) -> HerdModel:
+                                grid, noise_cov: np.ndarray | None = None) -> HerdModel:
     """A pairwise :class:`HerdModel` from the estimator's parameter matrix (N, P).
 
     Row i is θ_i in the order of DESIGN.md, [a_i, θ1_i·, θ2_i·, θu_i·, θv_i·], the
     neighbours being the other agents in ``agents`` order, and the field on **every** centre
     of ``grid`` (a :class:`~herd_ros.model.rbf_field.FieldGrid`, σ = 2/3 spacing, no pruning),
-    so P = 1 + 2(N − 1) + 2K with K = nx·ny. The topic carries no Q, so noise_cov is zero.
+    so P = 1 + 2(N − 1) + 2K with K = nx·ny. ``noise_cov`` (N, 2, 2) is Q_i from the
+    estimator's ``/herd/model/noise`` (zero until it has arrived).
     """
     from herd_ros.model.rbf_field import RbfBasis
 
@@ -173,5 +174,7 @@ def model_from_parameter_matrix(theta: np.ndarray, agents: list[str], dt: float,
                                neighbors=[a for a in agents if a != agent],
                                theta1=row[1:1 + m], theta2=row[1 + m:1 + 2 * m], basis=basis,
                                field_u=row[1 + 2 * m:1 + 2 * m + k],
-                               field_v=row[1 + 2 * m + k:1 + 2 * m + 2 * k])
+                               field_v=row[1 + 2 * m + k:1 + 2 * m + 2 * k],
+                               noise_cov=(np.zeros((2, 2)) if noise_cov is None
+                                          else noise_cov[i]))
     return HerdModel(agents=list(agents), dt=float(dt), laws=laws)

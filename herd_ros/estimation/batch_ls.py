@@ -156,7 +156,11 @@ def fit_agent(reg: AgentRegression, ridge: float = 0.0, se: str = 'sandwich') ->
     r_x = reg.y_x - reg.A_x @ th_a - reg.F @ th_u
     r_y = reg.y_y - reg.A_y @ th_a - reg.F @ th_v
     residuals = np.column_stack([r_x, r_y])
-    noise_cov = np.cov(residuals.T, ddof=0) if m > 1 else np.zeros((2, 2))
+    # Q_i with the degrees of freedom the fit used up: p parameters over 2m equations, so
+    # each component loses p/2 (plain rᵀr/m underestimates Q by p/2m, which matters for a
+    # short recording and makes simulated herds too calm)
+    dof = max(m - len(theta) / 2.0, 1.0)
+    noise_cov = residuals.T @ residuals / dof
     # covariance of θ from R by triangular solves
     Rinv = solve_triangular(R, np.eye(len(R)))
     bread = Rinv @ Rinv.T

@@ -65,6 +65,7 @@ HERD_MODEL_DEFAULTS = {
     'dt': 1.0,
     'field_grid': [6, 6],
     'field_bounds': [-150.0, 150.0, -150.0, 150.0],
+    'model_min_updates': 0,
 }
 
 
@@ -109,12 +110,17 @@ class HerdModelPolicy:
         self.updates = 0
         self.status = 'waiting for a model'
         self.source = p['model_source']
+        self.min_updates = int(p['model_min_updates'])
+        self.received = 0
         if self.source == 'file':
             self.set_model(self._model_from_parameters())
         elif self.source == 'topic':
             self._check_topic_parameters(p)
+            self.noise_cov = None
             node.create_subscription(Float64MultiArray, '/herd/model/params',
                                      self.on_params, 10)
+            node.create_subscription(Float64MultiArray, '/herd/model/noise',
+                                     self.on_noise, 10)
         else:
             raise ParameterError(f'model_source must be file or topic, got {self.source!r}')
 
@@ -175,8 +181,12 @@ class HerdModelPolicy:
         return given
 
     def set_model(self, model):
+        # one noise generator for the node's life: a live model is replaced every snapshot,
+        # and re-seeding each time would repeat the same draw (a constant push, not noise)
+        if not hasattr(self, 'rng'):
+            self.rng = np.random.default_rng(self.seed)
         self.follower = HerdFollower(model, self._assignment(list(model.agents)), self.robots,
-                                     noise=self.noise, seed=self.seed)
+                                     noise=self.noise, seed=self.rng)
         self.updates += 1
         self.status = f'model of {model.n_agents} animals, dt {model.dt:g} s ({self.source})'
 
@@ -191,10 +201,32 @@ class HerdModelPolicy:
                 raise HerdInputError(f'/herd/model/params: {data.size} numbers for '
                                      f'{rows} x {cols}')
             theta = data[:rows * cols].reshape(rows, cols)
-            self.set_model(model_from_parameter_matrix(theta, self.agents, self.dt, self.grid))
+            self.received += 1
+            if self.received <= self.min_updates:
+                self.status = (f'warming up: model update {self.received} of '
+                               f'{self.min_updates} ignored')
+                return
+            unstable = np.abs(theta[:, 0]) >= 1.0
+            if unstable.any():
+                k = int(np.argmax(unstable))
+                raise HerdInputError(f'/herd/model/params: damping {theta[k, 0]:.3f} of '
+                                     f'{self.agents[k]} makes the law unstable (|a| >= 1); '
+                                     f'keeping the previous model')
+            self.set_model(model_from_parameter_matrix(theta, self.agents, self.dt, self.grid,
+                                                       self.noise_cov))
         except (HerdInputError, ParameterError) as exc:
             self.status = f'ignored parameters: {exc}'
             self.node.get_logger().warn(str(exc), throttle_duration_sec=10.0)
+
+    def on_noise(self, msg: Float64MultiArray):
+        """Q_i of every agent from ``/herd/model/noise`` (agent × [qxx, qxy, qyx, qyy])."""
+        data = np.asarray(msg.data, dtype=float)
+        n = len(self.agents)
+        if data.size != 4 * n or not np.isfinite(data).all():
+            self.node.get_logger().warn(f'/herd/model/noise: expected {4 * n} finite numbers, '
+                                        f'got {data.size}', throttle_duration_sec=10.0)
+            return
+        self.noise_cov = data.reshape(n, 2, 2)
 
     # -- the policy -----------------------------------------------------------------------
     def command(self, state: FleetObservation) -> np.ndarray:

@@ -118,6 +118,7 @@ class Estimator(Node):
         self._resume()
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         self.params_pub = self.create_publisher(Float64MultiArray, '/herd/model/params', 10)
+        self.noise_pub = self.create_publisher(Float64MultiArray, '/herd/model/noise', 10)
         self.pred_pub = self.create_publisher(PoseArray, '/herd/model/prediction', 10)
         self.marker_pub = self.create_publisher(MarkerArray, '/herd/model/markers', 1)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -187,6 +188,12 @@ class Estimator(Node):
                           MultiArrayDimension(label='param', size=p, stride=p)]
         msg.data = array.array('d', theta.ravel())
         self.params_pub.publish(msg)
+        q = self.core.rls.noise_cov().reshape(n, 4)
+        noise = Float64MultiArray()
+        noise.layout.dim = [MultiArrayDimension(label='agent', size=n, stride=n * 4),
+                            MultiArrayDimension(label='qxx_qxy_qyx_qyy', size=4, stride=4)]
+        noise.data = array.array('d', q.ravel())
+        self.noise_pub.publish(noise)
 
     def publish_prediction(self):
         pred = self.core.predict()

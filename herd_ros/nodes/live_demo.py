@@ -1,0 +1,228 @@
+"""The whole herd graph in one process (what ``herd-ros demo`` runs on the pip path).
+
+replay → gps_ingest → estimator → controller → fleet_sim, composed with a multi-threaded
+executor, the same nodes and topics as ``launch/herd.launch.py``. Every node reads its own
+section of one parameters file (the ROS way: ``--ros-args --params-file``), and all but the
+replay follow the bag's ``/clock`` (``use_sim_time``), so the robots live in the cows' time
+while the bag plays faster than real time.
+
+A small recorder node keeps what the report needs: the herd snapshots (``/herd/poses``), the
+robots at the same ticks (``/fleet/poses``) and the learned parameters over time
+(``/herd/model/params``).
+"""
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+PADDOCK_DATUM = [27.0153, -108.7937, 0.0]
+
+
+class _NoAliasDumper(yaml.SafeDumper):
+    """ROS's parameter-file parser refuses YAML anchors and aliases."""
+
+    def ignore_aliases(self, data):
+        return True
+
+
+class DemoRecorder:
+    """Records herd snapshots, robot poses at the same ticks and parameters over time."""
+
+    def __init__(self, node, n_robots: int):
+        from geometry_msgs.msg import PoseArray
+        from std_msgs.msg import Float64MultiArray
+        self.node = node
+        self.lock = threading.Lock()
+        self.herd_times, self.herd, self.robots = [], [], []
+        self.param_times, self.params = [], []
+        self.latest_robots = np.full((n_robots, 2), np.nan)
+        self.robots_moved = False
+        node.create_subscription(PoseArray, '/herd/poses', self.on_herd, 100)
+        node.create_subscription(PoseArray, '/fleet/poses', self.on_fleet, 100)
+        node.create_subscription(Float64MultiArray, '/herd/model/params', self.on_params, 100)
+        self.first_fleet = None
+
+    @staticmethod
+    def _xy(msg) -> np.ndarray:
+        return np.array([[p.position.x, p.position.y] for p in msg.poses], dtype=float)
+
+    def on_herd(self, msg):
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        with self.lock:
+            self.herd_times.append(t)
+            self.herd.append(self._xy(msg))
+            self.robots.append(self.latest_robots.copy())
+
+    def on_fleet(self, msg):
+        xy = self._xy(msg)
+        with self.lock:
+            if xy.shape == self.latest_robots.shape:
+                if self.first_fleet is None:
+                    self.first_fleet = xy.copy()
+                elif np.nanmax(np.abs(xy - self.first_fleet)) > 0.5:
+                    self.robots_moved = True
+                self.latest_robots = xy
+
+    def on_params(self, msg):
+        dims = msg.layout.dim
+        if len(dims) != 2:
+            return
+        theta = np.asarray(msg.data, dtype=float)[:dims[0].size * dims[1].size]
+        with self.lock:
+            t = self.herd_times[-1] if self.herd_times else np.nan
+            self.param_times.append(t)
+            self.params.append(theta.reshape(dims[0].size, dims[1].size))
+
+
+def first_positions(bag, agents, datum) -> np.ndarray:
+    """ENU position of each agent's first valid fix in the bag (where the robots start)."""
+    from herd_ros.ingest.geodesy import geodetic_to_enu
+    from herd_ros.io.bags import read_fix_bag
+    fixes = read_fix_bag(bag)
+    out = np.zeros((len(agents), 2))
+    for i, a in enumerate(agents):
+        f = fixes[(fixes['agent'] == a) & np.isfinite(fixes['lat']) & np.isfinite(fixes['lon'])]
+        if 'status' in f:
+            f = f[f['status'] >= 0]
+        row = f.sort_values('time').iloc[0]
+        e, n, _ = geodetic_to_enu(row['lat'], row['lon'], 0.0, *datum)
+        out[i] = (float(e), float(n))
+    return out
+
+
+def demo_parameters(bag, out_dir, agents, robots, rate, dt, fence, start, grid, bounds) -> dict:
+    """One parameters mapping with a section per node."""
+    common = {'use_sim_time': True}
+    init = []
+    for x, y in start:
+        init += [float(x), float(y), 0.0]
+    herd = {'agents': list(agents), 'dt': float(dt)}
+    field = {'field_grid': [int(g) for g in grid], 'field_bounds': [float(b) for b in bounds]}
+    return {
+        'replay': {'ros__parameters': {'bag': str(bag), 'rate': float(rate), 'loop': False,
+                                       'publish_clock': True, 'wait_for_subscribers': 1}},
+        'gps_ingest': {'ros__parameters': {**common, **herd, 'datum': PADDOCK_DATUM,
+                                           'accel_std': 0.02}},
+        'estimator': {'ros__parameters': {
+            **common, **herd, **field, 'law': 'pairwise', 'forgetting': 1.0,
+            'model_out': str(Path(out_dir) / 'learned_model.yaml'),
+            'checkpoint_path': str(Path(out_dir) / 'estimator_checkpoint.npz'),
+            'checkpoint_period_s': 3600.0}},
+        'controller': {'ros__parameters': {
+            **common, **field, 'robots': list(robots), 'assignment': list(agents),
+            'agents': list(agents), 'dt': float(dt), 'mode': 'herd_model',
+            'model_source': 'topic', 'model_min_updates': 30, 'noise': True, 'seed': 0,
+            # one command per model step: the robots run the learned discrete law exactly
+            'rate_hz': 1.0 / float(dt), 'safety_horizon_s': float(dt),
+            'max_speed': 1.5, 'kinematics': 'holonomic', 'odom_timeout_s': 3.0 * float(dt),
+            'fence': [float(v) for v in np.asarray(fence).ravel()]}},
+        'fleet_sim': {'ros__parameters': {
+            **common, 'robots': list(robots), 'kinematics': 'holonomic', 'rate_hz': 2.0,
+            'initial_poses': init, 'max_speed': 1.5, 'max_accel': 0.5,
+            'cmd_timeout_s': 1.5 * float(dt),
+            'fence': [float(v) for v in np.asarray(fence).ravel()], 'datum': PADDOCK_DATUM}},
+    }
+
+
+def run_live_demo(bag, out_dir, rate: float = 40.0, dt: float = 10.0, grid=(8, 6),
+                  bounds=(-200.0, 200.0, -150.0, 150.0), fence=None, progress_period_s=5.0,
+                  log=print) -> dict:
+    """Play ``bag`` through the composed graph; returns the summary written to ``out_dir``."""
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+
+    from herd_ros.io.bags import bag_info
+    from herd_ros.nodes.controller import Controller
+    from herd_ros.nodes.estimator import Estimator
+    from herd_ros.nodes.fleet_sim import FleetSim
+    from herd_ros.nodes.gps_ingest import GpsIngest
+    from herd_ros.nodes.replay import Replay
+    from herd_ros.report.demo_report import write_demo_report
+    from herd_ros.synthesis.cow_scenario import Paddock
+    from herd_ros.trajectory import HerdTrajectory
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    info = bag_info(bag)
+    agents = sorted(t.split('/')[2] for t in info.topics if t.startswith('/herd/')
+                    and t.endswith('/fix'))
+    robots = [f'robot_{k + 1}' for k in range(len(agents))]
+    fence = Paddock().fence if fence is None else np.asarray(fence, dtype=float)
+    start = first_positions(bag, agents, PADDOCK_DATUM)
+    params = demo_parameters(bag, out, agents, robots, rate, dt, fence, start, grid, bounds)
+    params_file = out / 'demo_parameters.yaml'
+    params_file.write_text(yaml.dump(params, Dumper=_NoAliasDumper, sort_keys=False))
+    log(f'graph: replay({Path(bag).name}, rate {rate:g}) -> gps_ingest -> estimator -> '
+        f'controller -> fleet_sim; {len(agents)} cows, {len(robots)} robots; '
+        f'parameters: {params_file}')
+
+    rclpy.init(args=['--ros-args', '--params-file', str(params_file)])
+    nodes = []
+    executor = MultiThreadedExecutor(num_threads=4)
+    t0 = time.monotonic()
+    try:
+        from rclpy.node import Node
+        recorder_node = Node('demo_recorder', parameter_overrides=[rclpy.parameter.Parameter(
+                                 'use_sim_time', rclpy.parameter.Parameter.Type.BOOL, True)])
+        recorder = DemoRecorder(recorder_node, len(robots))
+        nodes.append(recorder_node)
+        for cls in (FleetSim, Controller, Estimator, GpsIngest, Replay):
+            nodes.append(cls())
+        for n in nodes:
+            executor.add_node(n)
+        spinner = threading.Thread(target=_spin, args=(executor,), daemon=True)
+        spinner.start()
+        next_report = time.monotonic() + progress_period_s
+        while spinner.is_alive():
+            spinner.join(timeout=0.2)
+            if time.monotonic() >= next_report:
+                next_report += progress_period_s
+                with recorder.lock:
+                    done = ((recorder.herd_times[-1] - info.start_ns * 1e-9) / info.duration_s
+                            if recorder.herd_times else 0.0)
+                    log(f'  {time.monotonic() - t0:5.0f} s: bag {100 * done:3.0f} %, '
+                        f'{len(recorder.herd_times)} herd snapshots, {len(recorder.params)} '
+                        f'model updates, robots {"moving" if recorder.robots_moved else "waiting"}')
+    except ExternalShutdownException:
+        pass
+    finally:
+        estimator = next((n for n in nodes if isinstance(n, Estimator)), None)
+        for n in nodes:
+            hook = getattr(n, 'on_shutdown', None)
+            if hook is not None:
+                hook()
+        executor.shutdown(timeout_sec=2.0)
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown()
+    model_path = out / 'learned_model.yaml'
+    if estimator is not None:
+        estimator.core.save_model(model_path, datum=PADDOCK_DATUM)
+    with recorder.lock:
+        times = np.asarray(recorder.herd_times)
+        cows = HerdTrajectory(times, agents, np.asarray(recorder.herd).reshape(-1, len(agents), 2))
+        rob = np.asarray(recorder.robots).reshape(-1, len(robots), 2)
+        param_times, thetas = list(recorder.param_times), list(recorder.params)
+    active = np.isfinite(rob).all(axis=(1, 2))
+    if len(thetas):
+        first_model_t = param_times[0]
+        active &= times > first_model_t
+    robots_traj = HerdTrajectory(times[active], robots, rob[active])
+    facts = {'bag': str(bag), 'rate': rate, 'dt': dt, 'wall_time_s': time.monotonic() - t0,
+             'herd_snapshots': int(len(times)), 'model_updates': int(len(thetas)),
+             'robot_samples': int(active.sum()), 'model_file': str(model_path)}
+    return write_demo_report(out, cows, robots_traj, agents, param_times, thetas, fence, facts)
+
+
+def _spin(executor):
+    from rclpy.executors import ExternalShutdownException
+    try:
+        executor.spin()
+    except (ExternalShutdownException, KeyboardInterrupt):
+        pass

@@ -1,0 +1,118 @@
+"""Report of the live demo: what the robots learned from the cows, and how alike they move.
+
+Plain numpy/matplotlib (no rclpy): the demo node records arrays, this turns them into
+
+* ``fig_params.png`` — learned parameters over time (damping of every cow, and the pair
+  equilibrium distances θ2/θ1 where positive);
+* ``fig_trajectories.png`` — robots vs cows over the paddock fence;
+* ``fig_statistics.png`` — herd statistics bars, robots vs cows (Schwager et al. Fig. 6);
+* ``summary.json`` — ``cows`` and ``robots``: {name: {mean_distance, std_distance,
+  mean_speed, std_speed}}, plus ``relative_difference`` per assigned pair and run facts.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from herd_ros.report.fit_figures import statistics_figure  # noqa: E402
+from herd_ros.simulation.statistics import STATISTICS, herd_statistics  # noqa: E402
+from herd_ros.trajectory import HerdTrajectory  # noqa: E402
+
+
+def params_figure(times, thetas, agents, path: Path):
+    """Damping per agent and θ2/θ1 per pair over (data) time."""
+    t = np.asarray(times, dtype=float)
+    th = np.asarray(thetas, dtype=float)  # (T, N, P)
+    n = len(agents)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    rel = (t - t[0]) / 60.0
+    for i, a in enumerate(agents):
+        axes[0].plot(rel, th[:, i, 0], label=a)
+        for k in range(n - 1):
+            t1, t2 = th[:, i, 1 + k], th[:, i, n + k]
+            with np.errstate(divide='ignore', invalid='ignore'):
+                deq = np.where(t1 > 0, t2 / t1, np.nan)
+            axes[1].plot(rel, deq, lw=0.8)
+    axes[0].set_title('learned damping a_i')
+    axes[0].set_xlabel('bag time (min)')
+    axes[0].legend(fontsize=7)
+    axes[1].set_title('learned equilibrium distances θ2/θ1 (m), every pair')
+    axes[1].set_xlabel('bag time (min)')
+    axes[1].set_ylim(0, 100)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def trajectories_over_fence(cows: HerdTrajectory, robots: HerdTrajectory, fence, path: Path):
+    """Cows and robots in the map frame with the fence polygon."""
+    fig, ax = plt.subplots(figsize=(7.5, 6))
+    if fence is not None and len(fence) >= 3:
+        f = np.vstack([fence, fence[:1]])
+        ax.plot(f[:, 0], f[:, 1], 'k-', lw=1.2, label='fence')
+    for i, a in enumerate(cows.agents):
+        ax.plot(cows.positions[:, i, 0], cows.positions[:, i, 1], '-', color=f'C{i}', lw=0.8,
+                label=f'{a} (cow)')
+    for i, r in enumerate(robots.agents):
+        ax.plot(robots.positions[:, i, 0], robots.positions[:, i, 1], '--', color=f'C{i}',
+                lw=0.8, label=f'{r} (robot)')
+    ax.set_aspect('equal')
+    ax.set_xlabel('x east (m)')
+    ax.set_ylabel('y north (m)')
+    ax.legend(fontsize=7, loc='best')
+    ax.set_title('cows (solid) and the robots that learned from them (dashed)')
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _finite_rows(traj: HerdTrajectory) -> HerdTrajectory:
+    keep = np.isfinite(traj.positions).all(axis=(1, 2))
+    return HerdTrajectory(traj.times[keep], list(traj.agents), traj.positions[keep])
+
+
+def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
+                      assignment: list[str], param_times, param_thetas, fence=None,
+                      facts: dict | None = None) -> dict:
+    """Figures and ``summary.json`` of the live demo; returns the summary."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cows, robots = _finite_rows(cows), _finite_rows(robots)
+    cow_stats = herd_statistics(cows) if cows.n_steps >= 2 else {}
+    robot_stats = herd_statistics(robots) if robots.n_steps >= 2 else {}
+    rel = {}
+    for r, a in zip(robots.agents, assignment):
+        if r in robot_stats and a in cow_stats:
+            rel[r] = {k: abs(robot_stats[r][k] - cow_stats[a][k]) / max(abs(cow_stats[a][k]),
+                                                                         1e-12)
+                      for k in STATISTICS}
+    herd_rel = {}
+    if cow_stats and robot_stats:
+        for k in STATISTICS:
+            c = np.mean([cow_stats[a][k] for a in cow_stats])
+            r = np.mean([robot_stats[a][k] for a in robot_stats])
+            herd_rel[k] = float(abs(r - c) / max(abs(c), 1e-12))
+    figures = []
+    if len(param_times) >= 2:
+        params_figure(param_times, param_thetas, cows.agents, out / 'fig_params.png')
+        figures.append('fig_params.png')
+    if cows.n_steps >= 2 and robots.n_steps >= 2:
+        trajectories_over_fence(cows, robots, fence, out / 'fig_trajectories.png')
+        figures.append('fig_trajectories.png')
+    if cow_stats and robot_stats:
+        by_cow = {a: robot_stats[r] for r, a in zip(robots.agents, assignment) if r in robot_stats}
+        statistics_figure(cow_stats, by_cow, out / 'fig_statistics.png', labels=('cows',
+                                                                                  'robots'))
+        figures.append('fig_statistics.png')
+    summary = {'cows': cow_stats, 'robots': robot_stats, 'assignment': dict(zip(robots.agents,
+                                                                               assignment)),
+               'relative_difference': rel, 'herd_relative_difference': herd_rel,
+               'figures': figures, **(facts or {})}
+    (out / 'summary.json').write_text(json.dumps(summary, indent=1))
+    return summary
