@@ -105,7 +105,8 @@ def demo_parameters(bag, out_dir, agents, robots, rate, dt, fence, start, grid, 
     field = {'field_grid': [int(g) for g in grid], 'field_bounds': [float(b) for b in bounds]}
     return {
         'replay': {'ros__parameters': {'bag': str(bag), 'rate': float(rate), 'loop': False,
-                                       'publish_clock': True, 'wait_for_subscribers': 1}},
+                                       'publish_clock': True, 'wait_for_subscribers': 1,
+                                       'exit_when_done': False}},
         'gps_ingest': {'ros__parameters': {**common, **herd, 'datum': PADDOCK_DATUM,
                                            'accel_std': 0.02}},
         'estimator': {'ros__parameters': {
@@ -174,12 +175,13 @@ def run_live_demo(bag, out_dir, rate: float = 40.0, dt: float = 10.0, grid=(8, 6
         nodes.append(recorder_node)
         for cls in (FleetSim, Controller, Estimator, GpsIngest, Replay):
             nodes.append(cls())
+        replay = nodes[-1]
         for n in nodes:
             executor.add_node(n)
         spinner = threading.Thread(target=_spin, args=(executor,), daemon=True)
         spinner.start()
         next_report = time.monotonic() + progress_period_s
-        while spinner.is_alive():
+        while spinner.is_alive() and not replay.finished.is_set():
             spinner.join(timeout=0.2)
             if time.monotonic() >= next_report:
                 next_report += progress_period_s
@@ -189,6 +191,7 @@ def run_live_demo(bag, out_dir, rate: float = 40.0, dt: float = 10.0, grid=(8, 6
                     log(f'  {time.monotonic() - t0:5.0f} s: bag {100 * done:3.0f} %, '
                         f'{len(recorder.herd_times)} herd snapshots, {len(recorder.params)} '
                         f'model updates, robots {"moving" if recorder.robots_moved else "waiting"}')
+        time.sleep(1.0)   # let the last snapshots through the graph
     except ExternalShutdownException:
         pass
     finally:
@@ -214,6 +217,9 @@ def run_live_demo(bag, out_dir, rate: float = 40.0, dt: float = 10.0, grid=(8, 6
         first_model_t = param_times[0]
         active &= times > first_model_t
     robots_traj = HerdTrajectory(times[active], robots, rob[active])
+    from herd_ros.trajectory import write_trajectory_csv
+    write_trajectory_csv(out / 'cows_herd_poses.csv', cows)
+    write_trajectory_csv(out / 'robots_fleet_poses.csv', robots_traj)
     facts = {'bag': str(bag), 'rate': rate, 'dt': dt, 'wall_time_s': time.monotonic() - t0,
              'herd_snapshots': int(len(times)), 'model_updates': int(len(thetas)),
              'robot_samples': int(active.sum()), 'model_file': str(model_path)}

@@ -55,6 +55,7 @@ DEFAULTS = {
     'default_qos_depth': 100,
     'wait_for_subscribers': 0,
     'progress_period_s': 5.0,
+    'exit_when_done': True,
 }
 
 
@@ -151,6 +152,7 @@ class ReplayConfig:
         self.wait_for_subscribers = int(p['wait_for_subscribers'])
         self.topics = [str(t) for t in p['topics']]
         self.remap = parse_remap(p['remap'])
+        self.exit_when_done = bool(p['exit_when_done'])
 
 
 class Replay(Node):
@@ -194,6 +196,7 @@ class Replay(Node):
         # Python signal handlers (SIGTERM from run_node) run promptly.
         self.create_timer(0.1, lambda: None)
         self._stop = threading.Event()
+        self.finished = threading.Event()   # set when playback is over (composed graphs wait)
         self._player = threading.Thread(target=self._run, name='replay', daemon=True)
         self._player.start()
 
@@ -213,7 +216,8 @@ class Replay(Node):
             if not self._stop.is_set():
                 self.get_logger().error(f'playback failed: {exc.__class__.__name__}: {exc}')
         finally:
-            if not self._stop.is_set():
+            self.finished.set()
+            if not self._stop.is_set() and self.cfg.exit_when_done:
                 self.context.try_shutdown()      # ends the spin in run_node: exit 0
 
     def _wait_for_subscribers(self) -> bool:

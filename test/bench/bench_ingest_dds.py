@@ -1,0 +1,260 @@
+"""`gps_ingest` through DDS: N collars at 1 Hz for a minute (issue 3, acceptance 6).
+
+Three processes on this machine, loopback-only discovery, a domain of their own:
+
+* the ``gps_ingest`` node (the installed console script), one run per executor;
+* a publisher process (this script, ``--role publisher``): N NavSatFix publishers (sensor-data
+  QoS), collar k publishing at phase k/N of every second, each fix stamped with its publish
+  wall time (live collars: data time = wall time);
+* this process: subscribes every ``/herd/<agent>/odom`` and ``/diagnostics``.
+
+Latency = wall time an Odometry is received here − its stamp (= the fix's publish time), so
+it includes DDS both ways, the node, and this process' own queueing. Loss: every published
+fix must be counted by the node (accepted or rejected, from its final diagnostics) and every
+accepted one must arrive here as Odometry.
+
+    .venv/bin/python test/bench/bench_ingest_dds.py [--collars 1000] [--seconds 60]
+        [--executors events,single_threaded]
+"""
+import argparse
+import json
+import os
+import random
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO))
+DATUM = (46.8, 7.15, 550.0)
+
+
+def agents_of(n):
+    return [f'cow_{k:04d}' for k in range(n)]
+
+
+def cpu_seconds(pid):
+    """utime + stime of a process (s)."""
+    with open(f'/proc/{pid}/stat') as f:
+        fields = f.read().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+# -- publisher process -----------------------------------------------------------------------
+def run_publisher(n, seconds, rate):
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import NavSatFix, NavSatStatus
+
+    from herd_ros.ingest.geodesy import enu_to_geodetic
+    from herd_ros.nodes.ros_common import seconds_to_stamp
+
+    rclpy.init()
+    node = rclpy.create_node('bench_collars')
+    agents = agents_of(n)
+    pubs = [node.create_publisher(NavSatFix, f'/herd/{a}/fix', qos_profile_sensor_data)
+            for a in agents]
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline:
+        if all(p.get_subscription_count() > 0 for p in pubs):
+            break
+        time.sleep(0.2)
+    else:
+        print(json.dumps({'error': 'gps_ingest never subscribed'}), flush=True)
+        return 1
+    print(json.dumps({'ready': True}), flush=True)
+    rng = np.random.default_rng(0)
+    home = rng.uniform(-500, 500, (n, 2))
+    period = 1.0 / rate
+    sent = np.zeros(n, dtype=int)
+    start = time.time() + 1.0
+    total = int(seconds * rate) * n
+    for j in range(total):
+        k, cycle = j % n, j // n
+        due = start + cycle * period + k * period / n
+        delay = due - time.time()
+        if delay > 0.002:
+            time.sleep(delay)
+        z = home[k] + rng.normal(0, 2.0, 2)
+        lat, lon, _ = enu_to_geodetic(z[0], z[1], 0.0, *DATUM)
+        msg = NavSatFix()
+        msg.header.stamp = seconds_to_stamp(time.time())
+        msg.status.status = NavSatStatus.STATUS_FIX
+        msg.latitude, msg.longitude, msg.altitude = float(lat), float(lon), float('nan')
+        pubs[k].publish(msg)
+        sent[k] += 1
+    lag = time.time() - (start + seconds)
+    print(json.dumps({'sent': sent.tolist(), 'lag_at_end_s': lag}), flush=True)
+    time.sleep(2.0)
+    node.destroy_node()
+    rclpy.shutdown()
+    return 0
+
+
+# -- measuring process ------------------------------------------------------------------------
+class Measurer:
+    def __init__(self, node, agents):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from nav_msgs.msg import Odometry
+        self.latency = []
+        self.received = dict.fromkeys(agents, 0)
+        self.counters = {}
+        for a in agents:
+            node.create_subscription(Odometry, f'/herd/{a}/odom',
+                                     lambda m, a=a: self.on_odom(a, m), 50)
+        node.create_subscription(DiagnosticArray, '/diagnostics', self.on_diag, 5)
+
+    def on_odom(self, agent, msg):
+        now = time.time()
+        self.latency.append(now - (msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec))
+        self.received[agent] += 1
+
+    def on_diag(self, msg):
+        for s in msg.status:
+            if s.hardware_id:
+                v = {kv.key: kv.value for kv in s.values}
+                self.counters[s.hardware_id] = (
+                    int(v['accepted']),
+                    sum(int(v[k]) for k in v if k.startswith('rejected_')))
+
+
+def run_once(n, seconds, rate, executor_name, env):
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+
+    agents = agents_of(n)
+    tmp = Path(tempfile.mkdtemp(prefix='bench_ingest_dds_'))
+    params = tmp / 'gps_ingest.yaml'
+    params.write_text('gps_ingest:\n  ros__parameters:\n'
+                      f'    agents: [{", ".join(agents)}]\n'
+                      f'    datum: [{", ".join(str(v) for v in DATUM)}]\n'
+                      f'    dt: {1.0 / rate}\n    stale_after: {10.0 / rate}\n'
+                      f'    executor: {executor_name}\n')
+    log = open(tmp / 'gps_ingest.log', 'w')
+    node_proc = subprocess.Popen([str(Path(sys.executable).parent / 'gps_ingest'),
+                                  '--ros-args', '--params-file', str(params)],
+                                 env=env, stdout=log, stderr=subprocess.STDOUT)
+    pub_proc = None
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        node = rclpy.create_node('bench_measurer', context=context)
+        measurer = Measurer(node, agents)
+        executor = EventsExecutor(context=context)
+        executor.add_node(node)
+
+        def spin_for(sec, until=None):
+            end = time.monotonic() + sec
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.05)
+                if until is not None and until():
+                    return True
+            return False
+
+        t_setup = time.monotonic()
+        pub_proc = subprocess.Popen([sys.executable, __file__, '--role', 'publisher',
+                                     '--collars', str(n), '--seconds', str(seconds),
+                                     '--rate', str(rate)],
+                                    env=env, stdout=subprocess.PIPE, text=True)
+        lines = []
+        threading.Thread(target=lambda: lines.extend(
+            json.loads(x) for x in pub_proc.stdout if x.strip()), daemon=True).start()
+
+        def publisher_said(key):
+            return any(key in x for x in list(lines)) or pub_proc.poll() is not None
+
+        spin_for(600, lambda: publisher_said('ready') or publisher_said('error'))
+        setup_s = time.monotonic() - t_setup
+        if not any('ready' in x for x in lines):
+            raise RuntimeError(f'publisher failed: {lines}')
+        cpu0, t0 = cpu_seconds(node_proc.pid), time.monotonic()
+        spin_for(seconds + 600, lambda: publisher_said('sent'))
+        run_s = time.monotonic() - t0
+        cpu1 = cpu_seconds(node_proc.pid)
+        sent = next(x for x in lines if 'sent' in x)
+        sent_per = dict(zip(agents, sent['sent']))
+        # drain: wait until the node has accounted for every fix (or 20 s)
+        spin_for(20, lambda: all(measurer.counters.get(a, (0, 0))[0]
+                                 + measurer.counters.get(a, (0, 0))[1] >= sent_per[a]
+                                 for a in agents)
+                 and sum(measurer.received.values())
+                 >= sum(c[0] for c in measurer.counters.values()))
+        spin_for(1.5)
+        alive = node_proc.poll() is None
+    finally:
+        for proc in (pub_proc, node_proc):
+            if proc is not None and proc.poll() is None:
+                proc.send_signal(2)
+                try:
+                    proc.wait(timeout=15)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+        rclpy.shutdown(context=context)
+    total_sent = int(sum(sent_per.values()))
+    counted = sum(sum(measurer.counters.get(a, (0, 0))) for a in agents)
+    accepted = sum(measurer.counters.get(a, (0, 0))[0] for a in agents)
+    received = sum(measurer.received.values())
+    lat = np.array(measurer.latency) * 1e3
+    return {'executor': executor_name, 'collars': n, 'sent': total_sent,
+            'counted': counted, 'accepted': accepted, 'odom': received,
+            'lost_to_node': total_sent - counted, 'lost_odom': accepted - received,
+            'p50_ms': float(np.percentile(lat, 50)) if len(lat) else float('nan'),
+            'p99_ms': float(np.percentile(lat, 99)) if len(lat) else float('nan'),
+            'node_cpu': (cpu1 - cpu0) / run_s, 'setup_s': setup_s,
+            'publisher_lag_s': sent['lag_at_end_s'], 'alive': alive}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--role', choices=('bench', 'publisher'), default='bench')
+    ap.add_argument('--collars', type=int, default=1000)
+    ap.add_argument('--seconds', type=float, default=60.0)
+    ap.add_argument('--rate', type=float, default=1.0, help='fixes per collar per second')
+    ap.add_argument('--executors', default='events,single_threaded')
+    args = ap.parse_args(argv)
+    if args.role == 'publisher':
+        try:
+            return run_publisher(args.collars, args.seconds, args.rate)
+        except KeyboardInterrupt:
+            return 0
+    env = dict(os.environ)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['ROS_STATIC_PEERS'] = ''
+    env.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
+    env['PYTHONPATH'] = os.pathsep.join([str(REPO), env.get('PYTHONPATH', '')])
+    env['PYTHONUNBUFFERED'] = '1'
+    os.environ.update({k: env[k] for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE',
+                                           'ROS_STATIC_PEERS', 'ROS_DOMAIN_ID')})
+    header = (f'{"executor":>16} {"collars":>7} {"fix/s":>6} {"sent":>7} {"lost->node":>10} '
+              f'{"lost->odom":>10} {"p50 ms":>8} {"p99 ms":>8} {"node cpu":>8} '
+              f'{"setup s":>7}')
+    rows = []
+    for name in args.executors.split(','):
+        r = run_once(args.collars, args.seconds, args.rate, name.strip(), env)
+        rows.append(r)
+        if not r['alive']:
+            print(f'warning: gps_ingest ({name}) was not alive at the end', file=sys.stderr)
+        if r['publisher_lag_s'] > 1.0:
+            print(f'warning: the publisher fell {r["publisher_lag_s"]:.1f} s behind: the '
+                  f'offered rate was lower than asked', file=sys.stderr)
+    print(header)
+    for r in rows:
+        print(f'{r["executor"]:>16} {r["collars"]:>7} {r["collars"] * args.rate:>6.0f} '
+              f'{r["sent"]:>7} {r["lost_to_node"]:>10} {r["lost_odom"]:>10} '
+              f'{r["p50_ms"]:>8.1f} {r["p99_ms"]:>8.1f} {100 * r["node_cpu"]:>7.0f}% '
+              f'{r["setup_s"]:>7.1f}')
+    print(f'one run of {args.seconds:g} s per executor (p50 = median fix->odom latency over '
+          f'every fix); reproduce with: .venv/bin/python test/bench/bench_ingest_dds.py '
+          f'--collars {args.collars} --seconds {args.seconds:g} --executors {args.executors}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,337 @@
+"""The `gps_ingest` node as users run it (issue 3, acceptance 5): the installed console script
+in a subprocess, fed NavSatFix by this test process over loopback-only DDS.
+
+Expectations come from known truth (positions of simulated collars, counts of the bad
+messages sent) or from the offline path (`trajectory_from_fixes`), never from the node.
+"""
+import math
+import os
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from geometry_msgs.msg import PoseArray  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+from rclpy.qos import qos_profile_sensor_data  # noqa: E402
+from sensor_msgs.msg import NavSatFix, NavSatStatus  # noqa: E402
+
+from herd_ros.ingest.geodesy import enu_to_geodetic  # noqa: E402
+from herd_ros.ingest.pipeline import trajectory_from_fixes  # noqa: E402
+from herd_ros.nodes.ros_common import seconds_to_stamp, stamp_to_seconds  # noqa: E402
+
+DATUM = (46.8, 7.15, 550.0)
+T0 = 1_700_000_000.0
+WARN = DiagnosticStatus.WARN[0] if isinstance(DiagnosticStatus.WARN, bytes) else 1
+
+
+@pytest.fixture
+def ros(ros_env):
+    """A fresh rclpy context on the subprocess' domain, shut down afterwards."""
+    os.environ['ROS_DOMAIN_ID'] = ros_env['ROS_DOMAIN_ID']
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('gps_ingest_test_collars', context=context)
+    yield node, ros_env
+    node.destroy_node()
+    rclpy.shutdown(context=context)
+
+
+def start_node(console_script, env, tmp_path, agents, **params):
+    args = [console_script('gps_ingest'), '--ros-args',
+            '-p', f'agents:=[{", ".join(agents)}]', '-p', 'diagnostics_period:=0.3']
+    for name, value in params.items():
+        if isinstance(value, (list, tuple)):
+            value = '[' + ', '.join(repr(float(v)) for v in value) + ']'
+        args += ['-p', f'{name}:={value}']
+    log = open(tmp_path / 'gps_ingest.log', 'w')
+    proc = subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT, text=True)
+    proc.log_path = tmp_path / 'gps_ingest.log'
+    return proc
+
+
+def stop(proc):
+    """SIGINT, then SIGKILL if it does not stop; returns the exit status."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.returncode
+
+
+class Collars:
+    """Publishes fixes for the agents and collects what gps_ingest publishes."""
+
+    def __init__(self, node, agents):
+        self.node = node
+        self.agents = list(agents)
+        self.pubs = {a: node.create_publisher(NavSatFix, f'/herd/{a}/fix',
+                                              qos_profile_sensor_data) for a in agents}
+        self.odom = {a: [] for a in agents}
+        self.poses = []
+        self.diag = {}            # hardware_id or name -> list of (level, message, values)
+        for a in agents:
+            node.create_subscription(Odometry, f'/herd/{a}/odom',
+                                     lambda m, a=a: self.odom[a].append(m), 100)
+        node.create_subscription(PoseArray, '/herd/poses', self.poses.append, 100)
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 50)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=node.context)
+        self.executor.add_node(node)
+
+    def _on_diag(self, msg):
+        for s in msg.status:
+            level = s.level[0] if isinstance(s.level, bytes) else int(s.level)
+            values = {kv.key: kv.value for kv in s.values}
+            self.diag.setdefault(s.hardware_id or s.name, []).append((level, s.message, values))
+
+    def spin(self, seconds, until=None):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.01)
+            if until is not None and until():
+                return True
+        return until is None
+
+    def wait_for_node(self, proc, timeout=30.0):
+        def matched():
+            return (all(p.get_subscription_count() > 0 for p in self.pubs.values())
+                    and self.node.count_publishers('/herd/poses') > 0
+                    and self.node.count_publishers('/diagnostics') > 0
+                    and all(self.node.count_publishers(f'/herd/{a}/odom') > 0
+                            for a in self.agents))
+        ok = self.spin(timeout, lambda: matched() or proc.poll() is not None)
+        assert proc.poll() is None, f'gps_ingest exited: {proc.log_path.read_text()}'
+        assert ok, 'gps_ingest never matched the test topics'
+        self.spin(0.5)  # let the node's side of the discovery settle too
+
+    def publish(self, fixes):
+        """fixes: rows (agent, stamp, lat, lon, alt, status, cov_type, variance)."""
+        for k, (agent, stamp, lat, lon, alt, status, cov_type, var) in enumerate(fixes):
+            msg = NavSatFix()
+            msg.header.stamp = seconds_to_stamp(stamp)
+            msg.header.frame_id = f'{agent}/gps'
+            msg.status.status = int(status)
+            msg.status.service = NavSatStatus.SERVICE_GPS
+            msg.latitude, msg.longitude, msg.altitude = float(lat), float(lon), float(alt)
+            msg.position_covariance = [var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, 4 * var]
+            msg.position_covariance_type = int(cov_type)
+            self.pubs[agent].publish(msg)
+            self.spin(0.005)     # pace: best effort, the node keeps the last 50 per topic
+
+    def last_status(self, key):
+        return self.diag.get(key, [None])[-1]
+
+    def counted(self, agent):
+        """Fixes the node has accounted for (accepted or rejected), from its diagnostics."""
+        last = self.last_status(agent)
+        if last is None:
+            return 0
+        v = last[2]
+        return sum(int(v[k]) for k in v if k == 'accepted' or k.startswith('rejected_'))
+
+
+def truth_a(t):
+    """cow_a walks east at 0.5 m/s (ENU m about DATUM), t in s since T0."""
+    return np.array([10.0 + 0.5 * t, -20.0])
+
+
+TRUTH_B = np.array([-30.0, 40.0])
+
+
+def fix_row(agent, stamp, enu, noise, status=NavSatStatus.STATUS_FIX, cov_type=2, var=1.0,
+            alt=DATUM[2]):
+    lat, lon, _ = enu_to_geodetic(enu[0] + noise[0], enu[1] + noise[1], 0.0, *DATUM)
+    return (agent, stamp, float(lat), float(lon), alt, status, cov_type, var)
+
+
+def test_odometry_poses_and_bad_messages(ros, console_script, tmp_path):
+    node, env = ros
+    agents = ['cow_a', 'cow_b']
+    rng = np.random.default_rng(3)
+    good, n_steps = [], 60
+    for k in range(n_steps):
+        ta, tb = k + 0.25, k + 0.5
+        good.append(fix_row('cow_a', T0 + ta, truth_a(ta), rng.normal(0, 1.0, 2)))
+        # cow_b: no vertical solution (NaN altitude is valid) and covariance UNKNOWN
+        good.append(fix_row('cow_b', T0 + tb, TRUTH_B, rng.normal(0, 1.0, 2), cov_type=0,
+                            alt=math.nan))
+    bad_stamps = [T0 + 40.75, T0 + 41.75, T0 + 42.75, T0 + 5.0]
+    nan_lat = ('cow_a', bad_stamps[0], math.nan, 7.15, 550.0, 0, 2, 1.0)
+    no_fix = fix_row('cow_a', bad_stamps[1], truth_a(41.75), (0, 0),
+                     status=NavSatStatus.STATUS_NO_FIX)
+    jump = fix_row('cow_a', bad_stamps[2], truth_a(42.75), (500.0, 0.0))
+    backwards = fix_row('cow_a', bad_stamps[3], truth_a(5.0), (0, 0))
+    future = fix_row('cow_b', 2.1e9, TRUTH_B, (0, 0))   # year 2036: a broken stamp
+    stream = sorted(good, key=lambda f: f[1])
+    cut = next(i for i, f in enumerate(stream) if f[1] > T0 + 40.5)
+    stream = stream[:cut] + [nan_lat] + stream[cut:cut + 2] + [no_fix] \
+        + stream[cut + 2:cut + 4] + [jump, backwards, future] + stream[cut + 4:]
+
+    collars = Collars(node, agents)
+    proc = start_node(console_script, env, tmp_path, agents, dt=1.0, stale_after=5.0,
+                      accel_std=0.05, default_position_std=5.0, datum=DATUM)
+    try:
+        collars.wait_for_node(proc)
+        collars.publish(stream)
+        sent = {a: sum(f[0] == a for f in stream) for a in agents}
+        collars.spin(15.0, lambda: all(collars.counted(a) == sent[a] for a in agents))
+        assert proc.poll() is None, 'gps_ingest died on bad input'
+        assert {a: collars.counted(a) for a in agents} == sent, 'fixes were lost'
+
+        # -- Odometry: one per accepted fix, stamped with it, close to the truth ----------
+        good_stamps = {round(f[1], 6) for f in good}
+        for agent in agents:
+            odoms = collars.odom[agent]
+            # every accepted fix gave one odometry; the good fixes are nearly all accepted
+            # (this noise draw makes cow_a's first velocity 2.8 m/s wrong: four gate
+            # rejections, then the filter re-initialises on them, as designed)
+            assert len(odoms) == int(collars.last_status(agent)[2]['accepted'])
+            assert len(odoms) >= n_steps - 5
+            for m in odoms:
+                assert m.header.frame_id == 'map' and m.child_frame_id == agent
+                assert round(stamp_to_seconds(m.header.stamp), 6) in good_stamps
+        last_a, last_b = collars.odom['cow_a'][-1], collars.odom['cow_b'][-1]
+        t_a = stamp_to_seconds(last_a.header.stamp) - T0
+        assert t_a == pytest.approx(n_steps - 1 + 0.25)
+        pos_a = np.array([last_a.pose.pose.position.x, last_a.pose.pose.position.y])
+        cov_a = np.array(last_a.pose.covariance).reshape(6, 6)[:2, :2]
+        err = pos_a - truth_a(t_a)
+        assert np.linalg.norm(err) < 1.5
+        assert 0.01 < cov_a[0, 0] < 1.0 and 0.01 < cov_a[1, 1] < 1.0   # below R = 1 m²
+        assert err @ np.linalg.solve(cov_a, err) < 25.0                  # consistent
+        assert np.hypot(last_a.twist.twist.linear.x - 0.5, last_a.twist.twist.linear.y) < 0.25
+        tw = np.array(last_a.twist.covariance).reshape(6, 6)
+        assert 0 < tw[0, 0] < 0.25
+        pos_b = np.array([last_b.pose.pose.position.x, last_b.pose.pose.position.y])
+        assert np.linalg.norm(pos_b - TRUTH_B) < 1.5
+        # no odometry at the bad fixes, and it goes on after them
+        assert not any(round(stamp_to_seconds(m.header.stamp), 6) in
+                       {round(s, 6) for s in bad_stamps} for m in collars.odom['cow_a'])
+        assert sum(stamp_to_seconds(m.header.stamp) > bad_stamps[2]
+                   for m in collars.odom['cow_a']) >= 15
+
+        # -- PoseArray: every tick k·dt once, in order, agents in order, near the truth ---
+        ticks = np.array([stamp_to_seconds(m.header.stamp) for m in collars.poses])
+        assert len(ticks) >= n_steps - 3
+        assert ticks[0] == pytest.approx(T0 + 1.0)   # first multiple of dt after T0 + 0.25
+        np.testing.assert_allclose(np.diff(ticks), 1.0, atol=1e-6)
+        for m, tick in zip(collars.poses, ticks):
+            assert m.header.frame_id == 'map' and len(m.poses) == 2
+            if tick - T0 < 10:
+                continue
+            pa = np.array([m.poses[0].position.x, m.poses[0].position.y])
+            pb = np.array([m.poses[1].position.x, m.poses[1].position.y])
+            assert np.linalg.norm(pa - truth_a(tick - T0)) < 2.0
+            assert np.linalg.norm(pb - TRUTH_B) < 2.0
+
+        # -- Diagnostics: the bad fixes are counted by reason and raised a WARN -----------
+        level, _, values = collars.last_status('cow_a')
+        assert int(values['rejected_nan']) == 1
+        assert int(values['rejected_no_fix']) == 1
+        assert int(values['rejected_time']) == 1
+        assert int(values['rejected_speed']) + int(values['rejected_gate']) >= 1
+        assert any(lv == WARN for lv, _, _ in collars.diag['cow_a'])
+        assert values['stale'] == 'False'
+        # a stamp decades ahead is refused and does not drag the clock (checked above)
+        assert int(collars.last_status('cow_b')[2]['rejected_future']) == 1
+        assert proc.poll() is None
+    finally:
+        rc = stop(proc)
+    assert rc == 0, proc.log_path.read_text()
+
+
+def test_same_snapshots_as_the_offline_path(ros, console_script, tmp_path):
+    """Noisy, irregular fixes with jumps, NaN and NO_FIX; no datum parameter; the first
+    round published in reverse stamp order: the node must choose the offline datum and give
+    the offline snapshots."""
+    node, env = ros
+    agents = ['cow_a', 'cow_b', 'cow_c']
+    rng = np.random.default_rng(11)
+    rows = []
+    for i, agent in enumerate(agents):
+        t = T0 + 0.3 * i + np.cumsum(rng.uniform(0.4, 1.6, 120))
+        v = np.array([0.3 * (i - 1), 0.2])
+        p = np.array([20.0 * i, -10.0 * i]) + (t - T0)[:, None] * v
+        z = p + rng.normal(0, 3.0, p.shape)
+        z[rng.random(len(t)) < 0.03] += 50.0
+        cov_type = 2 if agent == 'cow_a' else 0
+        for k in range(len(t)):
+            status = NavSatStatus.STATUS_NO_FIX if k in (7, 60) else NavSatStatus.STATUS_FIX
+            row = fix_row(agent, float(t[k]), z[k], (0.0, 0.0), status=status,
+                          cov_type=cov_type, var=9.0)
+            if k == 30:
+                row = row[:2] + (math.nan,) + row[3:]
+            rows.append(row)
+    rows.sort(key=lambda r: r[1])
+    # the first fix of all is NO_FIX (never the datum); the first round arrives reversed
+    rows[0] = rows[0][:5] + (NavSatStatus.STATUS_NO_FIX,) + rows[0][6:]
+    stream = rows[:3][::-1] + rows[3:]
+    table = pd.DataFrame(rows, columns=['agent', 'time', 'lat', 'lon', 'alt', 'status',
+                                        'position_covariance_type', 'cov_ee'])
+    table['cov_nn'] = table['cov_ee']
+    table['cov_en'] = 0.0
+    params = dict(dt=2.0, stale_after=6.0, accel_std=0.1, default_position_std=4.0,
+                  gate_probability=0.995, max_speed=3.0)
+    offline = trajectory_from_fixes(table, datum=None, trim=False, agents=agents, **params)
+
+    collars = Collars(node, agents)
+    proc = start_node(console_script, env, tmp_path, agents, **params)
+    try:
+        collars.wait_for_node(proc)
+        collars.publish(stream)
+        sent = {a: sum(f[0] == a for f in stream) for a in agents}
+        collars.spin(15.0, lambda: all(collars.counted(a) == sent[a] for a in agents))
+        assert {a: collars.counted(a) for a in agents} == sent, 'fixes were lost'
+    finally:
+        rc = stop(proc)
+    assert rc == 0
+    log = proc.log_path.read_text()
+    assert log.count('datum (first valid fix)') == 1, log
+    lat0, lon0 = (float(s) for s in log.split('datum (first valid fix): lat ')[1]
+                     .split(' alt')[0].split(' lon '))
+    assert (lat0, lon0) == pytest.approx(offline.meta['datum'][:2], abs=1e-8)
+
+    index = {round(t, 6): k for k, t in enumerate(offline.times)}
+    compared = 0
+    for m in collars.poses:
+        k = index.get(round(stamp_to_seconds(m.header.stamp), 6))
+        assert k is not None, 'a tick the offline clock does not have'
+        node_xy = np.array([[p.position.x, p.position.y] for p in m.poses])
+        np.testing.assert_array_equal(np.isnan(node_xy), np.isnan(offline.positions[k]))
+        np.testing.assert_allclose(node_xy, offline.positions[k], atol=1e-6, rtol=0,
+                                   equal_nan=True)
+        compared += 1
+    assert compared >= 40
+    for agent in agents:
+        assert len(collars.odom[agent]) == offline.meta['counters'][agent]['accepted']
+        reported = collars.last_status(agent)[2]
+        for reason, count in offline.meta['counters'][agent].items():
+            assert int(reported[reason]) == count, (agent, reason)
+
+
+@pytest.mark.parametrize('overrides, message', [
+    ([], 'agents must be a non-empty list'),
+    (['agents:=[cow_a, 2cow]'], "agent id '2cow' is not a valid ROS name"),
+    (['agents:=[cow_a]', 'dt:=0.0'], 'dt must be a positive number'),
+    (['agents:=[cow_a]', 'datum:=[46.8]'], 'datum must be []'),
+])
+def test_bad_parameters_stop_with_one_clear_line(ros_env, console_script, overrides, message):
+    args = [console_script('gps_ingest'), '--ros-args']
+    for o in overrides:
+        args += ['-p', o]
+    proc = subprocess.Popen(args, env=ros_env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        _, err = proc.communicate(timeout=30)
+    finally:
+        stop(proc)
+    assert proc.returncode == 2
+    assert message in err
