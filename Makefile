@@ -13,7 +13,7 @@ ROS_WHEELS := "ros-jazzy-rclpy[fastrtps]" ros-jazzy-sensor-msgs ros-jazzy-nav-ms
               ros-jazzy-geometry-msgs ros-jazzy-std-msgs ros-jazzy-std-srvs \
               ros-jazzy-visualization-msgs ros-jazzy-diagnostic-msgs \
               ros-jazzy-rosgraph-msgs ros-jazzy-builtin-interfaces ros-jazzy-ament-index-python
-PY_DEPS    := setuptools wheel numpy scipy pandas filterpy rosbags PyYAML matplotlib tqdm pillow
+PY_DEPS    := setuptools wheel numpy scipy pandas numba filterpy rosbags PyYAML matplotlib tqdm pillow
 DEV_DEPS   := pytest pytest-timeout pymap3d mcap mcap-ros2-support \
               colcon-core colcon-ros colcon-python-setup-py
 BENCH_DEPS := padasip

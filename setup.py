@@ -19,7 +19,7 @@ setup(
         ('share/' + package_name + '/bags', sorted(glob('bags/*.md'))),
         ('share/' + package_name + '/bags/cows_3x1h', sorted(glob('bags/cows_3x1h/*'))),
     ],
-    install_requires=['setuptools', 'numpy', 'scipy', 'pandas', 'filterpy', 'rosbags', 'PyYAML',
+    install_requires=['setuptools', 'numpy', 'scipy', 'pandas', 'numba', 'filterpy', 'rosbags', 'PyYAML',
                       'matplotlib', 'tqdm'],
     zip_safe=True,
     maintainer='herd_ros maintainers',

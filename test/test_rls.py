@@ -138,3 +138,57 @@ def test_missing_agent_in_a_snapshot_never_poisons_theta():
     # lacks its own u^τ or u^{τ+1} at τ = 698, 699
     assert list(clean.samples - est.samples) == [5, 7, 5]
     assert np.allclose(est.theta[:, 0], clean.theta[:, 0], atol=0.01)
+
+
+@pytest.mark.parametrize('forgetting, windup', [(0.97, 'directional'), (0.97, 'exponential'),
+                                                (1.0, 'directional')])
+def test_compiled_kernel_equals_numpy_path(forgetting, windup):
+    """The numba kernel (rls_kernels) and the numpy path evaluate the same equations: equal
+    to rounding (~1e-13 relative after 40 updates, bound 1e-10), same skipped agents, P
+    symmetric to the last bit."""
+    pytest.importorskip('numba')
+    from herd_ros.estimation import rls_kernels
+    assert rls_kernels.compiled_update() is not None
+    rng = np.random.default_rng(7)
+    n, p = 7, 13
+    fast = HerdRLS(n, p, forgetting=forgetting, p0=1.0, windup=windup)
+    slow = HerdRLS(n, p, forgetting=forgetting, p0=1.0, windup=windup, compiled=False)
+
+    def rel(a, b):
+        return np.abs(a - b).max() / np.abs(b).max()
+    for k in range(40):
+        H = rng.normal(size=(n, 2, p))
+        if k % 2:
+            H[:, :, -2:] = 0.0                       # two directions excited half the time
+        y = rng.normal(size=(n, 2))
+        if k == 5:
+            y[3, 1] = np.nan                         # non-finite rows are skipped
+            H[4, 0, 2] = np.inf
+        mask = rng.random(n) > 0.2
+        e_fast, e_slow = fast.update(H, y, mask), slow.update(H, y, mask)
+        assert np.array_equal(np.isnan(e_fast), np.isnan(e_slow))
+        used = np.isfinite(e_slow).all(axis=1)
+        assert rel(e_fast[used], e_slow[used]) < 1e-10
+    assert rel(fast.P, slow.P) < 1e-10
+    assert rel(fast.theta, slow.theta) < 1e-10
+    assert rel(fast.sq_residual, slow.sq_residual) < 1e-10
+    assert np.array_equal(fast.samples, slow.samples) and fast.samples.min() < 40
+    assert np.allclose(fast.weight, slow.weight, rtol=1e-14)
+    assert np.array_equal(fast.P, np.swapaxes(fast.P, 1, 2))   # symmetric to the last bit
+
+
+@pytest.mark.parametrize('compiled', [True, False])
+def test_rank_deficient_rows_by_hand(compiled):
+    """H = 0 for an agent (S₀ = 0: nothing to forget, nothing learned) leaves it unchanged;
+    one non-zero row is a scalar RLS step. The pseudo-inverse of S₀ in directional
+    forgetting must not divide by zero (both implementations)."""
+    rls = HerdRLS(2, 3, forgetting=0.9, p0=4.0, compiled=compiled)
+    H = np.zeros((2, 2, 3))
+    H[1] = [[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]        # agent 1: one row, one direction
+    rls.update(H, np.array([[1.0, 1.0], [2.0, 0.5]]))
+    assert np.array_equal(rls.P[0], 4.0 * np.eye(3)) and np.array_equal(rls.theta[0], np.zeros(3))
+    # agent 1, direction 0, λ-forgetting then a scalar RLS step: p̄ = 4/0.9, p⁺ = p̄/(1 + p̄)
+    pbar = 4.0 / 0.9
+    assert np.isclose(rls.P[1, 0, 0], pbar / (1 + pbar), rtol=1e-12)
+    assert np.isclose(rls.theta[1, 0], 2.0 * pbar / (1 + pbar), rtol=1e-12)
+    assert np.allclose(rls.P[1, 1:, 1:], 4.0 * np.eye(2))

@@ -4,17 +4,24 @@ Agent-updates per second (one agent, one snapshot: its x and y rows) for herds o
 300 animals with the pairwise law (p = 1 + 2(N−1) + 2K) and 1 000 and 10 000 animals with
 the shared law (p = 1 + B + 2K), K = 36 field centres (6x6 grid), B = 6. Ratios in one run.
 
-- batched: :class:`herd_ros.estimation.rls.HerdRLS` (directional forgetting, Joseph form),
-  all agents in one call (herds with p > 400 in chunks of 50 agents to bound memory).
+- compiled: :class:`herd_ros.estimation.rls.HerdRLS` (directional forgetting, Joseph form),
+  all agents in one call (herds with p > 400 in chunks of 50 agents to bound memory), by
+  its numba kernel (:mod:`herd_ros.estimation.rls_kernels`); compile time excluded (the
+  kernel is compiled or loaded from numba's cache when the estimator is built, and one
+  warm-up update runs before timing).
+- numpy: the same estimator with ``compiled=False``: the batched numpy path (the fallback
+  when numba is not installed).
 - padasip: ``padasip.filters.FilterRLS``, one filter per agent and component (x, y), each
   adapted once per snapshot (benchmark-only dependency: ``pip install padasip``).
 - numpy loop: the textbook covariance-form RLS, one agent at a time.
 The loop baselines are timed on a sample of agents (updates are independent per agent).
 
 Also: the CPU share of one core for a 1 000-animal herd with the shared law at 1 Hz
-(regressors with cKDTree + RLS update, process time per snapshot).
+(regressors with cKDTree + RLS update, process time per snapshot), compiled and numpy.
+The machine may be shared: the load average is printed before and after.
 
-All contenders run single-threaded (OPENBLAS_NUM_THREADS=1): figures per core.
+All contenders run single-threaded (OPENBLAS_NUM_THREADS=1) and are timed in process CPU
+time, taking turns within each repeat: figures per core.
 
 Run: .venv/bin/python test/bench/bench_rls.py [--repeats 5]
 """
@@ -28,6 +35,7 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')  # one core for every contend
 
 import numpy as np
 
+from herd_ros.estimation import rls_kernels
 from herd_ros.estimation.online_fit import OnlineHerdEstimator
 from herd_ros.estimation.rls import HerdRLS
 
@@ -45,59 +53,80 @@ def numpy_loop_update(theta, P, H, y, lam):
     return theta, P
 
 
-def time_until(fn, min_seconds=0.3, min_calls=2):
-    """Seconds per call of fn (runs it until min_seconds and min_calls are reached)."""
-    calls, start = 0, time.perf_counter()
+def load_average() -> str:
+    """The 1, 5 and 15 minute load averages (the machine may be shared)."""
+    return ' '.join(f'{x:.2f}' for x in os.getloadavg())
+
+
+def time_until(fn, min_seconds=0.2, min_calls=2):
+    """CPU seconds of this process per call of fn (runs it until min_seconds of CPU time and
+    min_calls are reached). CPU time, not wall time: on a shared machine the time this
+    process waits for a core does not count (its cache and memory bandwidth still suffer)."""
+    calls, start = 0, time.process_time()
     while True:
         fn()
         calls += 1
-        el = time.perf_counter() - start
+        el = time.process_time() - start
         if el >= min_seconds and calls >= min_calls:
             return el / calls
 
 
-def rates(n, p, repeats, rng):
+def contenders(n, p, rng):
+    """name → (agents per call, one call), for the four contenders of a herd of n."""
     H = rng.normal(size=(n, 2, p))
     y = rng.normal(size=(n, 2))
     chunk = n if p <= 400 else 50
-    rls = HerdRLS(chunk, p, forgetting=LAMBDA, p0=1e3)
     Hs = [rng.normal(size=(chunk, 2, p)) for _ in range(4)]  # fresh rows every update
-    counter = iter(range(10 ** 9))
+    out = {}
+    for name, compiled in (('compiled', True), ('numpy', False)):
+        rls = HerdRLS(chunk, p, forgetting=LAMBDA, p0=1e3, compiled=compiled)
+        counter = iter(range(10 ** 9))
 
-    def batched_step():
-        rls.update(Hs[next(counter) % 4], y[:chunk])
-    batched = [chunk / time_until(batched_step) for _ in range(repeats)]
+        def batched_step(rls=rls, counter=counter):
+            rls.update(Hs[next(counter) % 4], y[:chunk])
+        batched_step()  # warm-up (caches, and numba's compilation if its cache was cold)
+        out[name] = (chunk, batched_step)
     sample = min(n, 20 if p < 200 else 3)
     loop_state = [(np.zeros(p), np.eye(p) * 1e3) for _ in range(sample)]
 
     def loop():
         for i in range(sample):
             numpy_loop_update(*loop_state[i], H[i], y[i], LAMBDA)
-    looped = [sample / time_until(loop) for _ in range(repeats)]
+    out['loop'] = (sample, loop)
     try:
-        from padasip.filters import FilterRLS
+        from padasip.filters import FilterRLS  # benchmark-only dependency
     except ImportError:
-        pad = [np.nan]
-    else:
-        psample = min(n, 20 if p < 200 else 2)
-        filters = [(FilterRLS(p, mu=LAMBDA, eps=1e-3), FilterRLS(p, mu=LAMBDA, eps=1e-3))
-                   for _ in range(psample)]
+        return out
+    psample = min(n, 20 if p < 200 else 2)
+    filters = [(FilterRLS(p, mu=LAMBDA, eps=1e-3), FilterRLS(p, mu=LAMBDA, eps=1e-3))
+               for _ in range(psample)]
 
-        def padasip_step():
-            for i in range(psample):
-                filters[i][0].adapt(y[i, 0], H[i, 0])
-                filters[i][1].adapt(y[i, 1], H[i, 1])
-        pad = [psample / time_until(padasip_step, min_seconds=0.3, min_calls=1)
-               for _ in range(repeats)]
-    return np.median(batched), np.median(looped), np.median(pad)
+    def padasip_step():
+        for i in range(psample):
+            filters[i][0].adapt(y[i, 0], H[i, 0])
+            filters[i][1].adapt(y[i, 1], H[i, 1])
+    out['padasip'] = (psample, padasip_step)
+    return out
 
 
-def cpu_share_1000_shared(repeats, rng):
+def rates(n, p, repeats, rng):
+    """Median agent-updates per second (CPU time) of each contender; the contenders take
+    turns within every repeat, so a change of the machine's load hits them all alike."""
+    runs = contenders(n, p, rng)
+    samples = {name: [] for name in ('compiled', 'numpy', 'loop', 'padasip')}
+    for _ in range(repeats):
+        for name, (agents, step) in runs.items():
+            samples[name].append(agents / time_until(step))
+    return {name: float(np.median(v)) if v else np.nan for name, v in samples.items()}
+
+
+def cpu_share_1000_shared(repeats, rng, compiled=True):
     """Process time per 1 Hz snapshot of 1 000 animals (shared law), as a share of one core."""
     n = 1000
     agents = [f'a{k}' for k in range(n)]
     est = OnlineHerdEstimator(agents, 1.0, 'shared', (6, 6), (-500, 500, -500, 500),
                               forgetting=LAMBDA)
+    est.rls.compiled = compiled
     p = rng.uniform(-500, 500, size=(n, 2))
     v = rng.normal(scale=0.5, size=(n, 2))
     t = 0.0
@@ -124,17 +153,27 @@ def main():
     rng = np.random.default_rng(0)
     cases = [('pairwise', 3), ('pairwise', 30), ('pairwise', 300),
              ('shared', 1000), ('shared', 10000)]
-    print(f'RLS agent-updates per second (median of {args.repeats} repeats; K = {K}, B = {B})')
-    print(f'{"law":>9} {"agents":>7} {"params":>7} {"batched":>11} {"numpy loop":>11} '
-          f'{"padasip":>9} {"vs loop":>8} {"vs padasip":>10}')
+    print(f'load average before: {load_average()}')
+    if rls_kernels.compiled_update() is None:
+        print('numba not available: the "compiled" column is the numpy path')
+    else:
+        print(f'compiled kernel: numba {rls_kernels.numba.__version__} (compile time excluded)')
+    print(f'RLS agent-updates per CPU second (median of {args.repeats} repeats; K = {K}, B = {B})')
+    print(f'{"law":>9} {"agents":>7} {"params":>7} {"compiled":>10} {"numpy":>9} '
+          f'{"numpy loop":>11} {"padasip":>9} {"vs loop":>8} {"vs padasip":>10} '
+          f'{"numpy vs padasip":>16}')
     for law, n in cases:
         p = 1 + 2 * (n - 1) + 2 * K if law == 'pairwise' else 1 + B + 2 * K
-        b, lo, pa = rates(n, p, args.repeats, rng)
-        print(f'{law:>9} {n:7d} {p:7d} {b:11.0f} {lo:11.0f} {pa:9.1f} {b / lo:7.1f}x '
-              f'{b / pa:9.1f}x')
-    share = cpu_share_1000_shared(args.repeats, rng)
-    print(f'1 000 animals, shared law, 1 Hz: {share * 1e3:.1f} ms CPU per snapshot = '
-          f'{100 * share:.1f} % of one core (regressors + update)')
+        r = rates(n, p, args.repeats, rng)
+        print(f'{law:>9} {n:7d} {p:7d} {r["compiled"]:10.0f} {r["numpy"]:9.0f} '
+              f'{r["loop"]:11.0f} {r["padasip"]:9.1f} {r["compiled"] / r["loop"]:7.1f}x '
+              f'{r["compiled"] / r["padasip"]:9.1f}x {r["numpy"] / r["padasip"]:15.1f}x')
+    for compiled in (True, False):
+        share = cpu_share_1000_shared(args.repeats, rng, compiled)
+        print(f'1 000 animals, shared law, 1 Hz, {"compiled" if compiled else "numpy":>8}: '
+              f'{share * 1e3:5.1f} ms CPU per snapshot = {100 * share:4.1f} % of one core '
+              f'(regressors + update)')
+    print(f'load average after: {load_average()}')
     print('reproduce: .venv/bin/python test/bench/bench_rls.py --repeats', args.repeats)
 
 
