@@ -131,7 +131,7 @@ class HerdRLS:
         P: (N, p, p) covariance (in units of the noise variance).
         samples: (N,) number of updates each agent received.
         forgetting: λ in (0, 1].
-        sq_residual: (N, 2, 2) exponentially weighted Σ e eᵀ of a-posteriori residuals.
+        sq_residual: (N, 2, 2) exponentially weighted Σ ε εᵀ of standardized innovations.
         weight: (N,) the matching weight Σ λ^k (for the mean).
         compiled: use the numba kernel when available (module docstring); False = numpy.
     """
@@ -345,12 +345,23 @@ class HerdRLS:
         if not isinstance(sl, slice):
             self.P[sl] = P
         self.theta[sl] = th
-        return e, ys - np.einsum('nkp,np->nk', Hs, th)
+        # standardized innovation ε = L⁻¹ e with S = L Lᵀ (see noise_cov)
+        Ssym = 0.5 * (S + np.swapaxes(S, 1, 2))
+        L = np.linalg.cholesky(Ssym)
+        eps = np.linalg.solve(L, e[..., None])[..., 0]
+        return e, eps
 
     # -- what the estimate says ----------------------------------------------------------
     def noise_cov(self) -> np.ndarray:
-        """Q_i (N, 2, 2): weighted mean of the a-posteriori residual outer products."""
-        w = np.maximum(self.weight, 1.0)[:, None, None]
+        """Q_i (N, 2, 2) from the standardized innovations ε_t = L_t⁻¹ e_t (S_t = L_t L_tᵀ).
+
+        With λ = 1, Σ_t ε_tᵀ ε_t = Σ_t e_tᵀ S_t⁻¹ e_t is exactly the residual sum of squares
+        of batch least squares on the same rows (the RLS cost recursion), so dividing by the
+        degrees of freedom left per component, n − p/2, is the batch estimate of Q. (The
+        a-posteriori residuals y − Hθ⁺ would underestimate Q by about p·ln(n/p)/n early
+        on, which makes herds simulated from an online model too calm.)
+        """
+        w = np.maximum(self.weight - self.n_params / 2.0, 1.0)[:, None, None]
         return self.sq_residual / w
 
     def theta_cov(self) -> np.ndarray:

@@ -316,8 +316,13 @@ def _herd_update(P, theta, H, y, use, lam, mode, samples, sq_residual, weight, e
             Kt[1, j] = v01 * mb0 + v11 * mb1
             th = theta[n, j] + (mb0 * g0 + mb1 * g1)
             theta[n, j] = th
-        f0 = y[n, 0] - _dot(h[0], theta[n])
-        f1 = y[n, 1] - _dot(h[1], theta[n])
+        # standardized innovation ε = L⁻¹ e (S = L Lᵀ): Σ εᵀε is exactly the least-squares
+        # residual sum of squares (λ = 1), the basis of an unbiased Q (rls.noise_cov)
+        l00 = np.sqrt(S00)
+        l10 = sb / l00
+        l11 = np.sqrt(max(S11 - l10 * l10, 1e-300))
+        f0 = e0 / l00
+        f1 = (e1 - l10 * f0) / l11
         e_all[n, 0] = e0
         e_all[n, 1] = e1
         samples[n] += 1

@@ -1,0 +1,132 @@
+"""The whole graph as separate processes (issue: robots that move like the herd, acceptance 1).
+
+replay (the shipped cow bag, /clock) → gps_ingest → estimator → controller → fleet_sim, each
+an installed console script with loopback-only discovery, all reading their sections of one
+parameters file (the one `herd-ros demo` composes in a single process). A sixth process,
+`record`, writes /herd/poses, /fleet/poses and /herd/model/params to a bag, which the test
+reads back with rosbags. Expectations are independent of the code under test: the robots'
+herd statistics are compared with the cows' as they come out of ingest (same clock, same
+statistics), parameters must settle, robots must move and stay inside the fence.
+"""
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+import yaml
+from matplotlib.path import Path as PolyPath
+
+from conftest import REPO
+from herd_ros.io.bags import read_messages
+from herd_ros.nodes.live_demo import PADDOCK_DATUM, _NoAliasDumper, demo_parameters, \
+    first_positions
+from herd_ros.simulation.statistics import STATISTICS, herd_statistics
+from herd_ros.synthesis.cow_scenario import Paddock
+from herd_ros.trajectory import HerdTrajectory
+
+BAG = REPO / 'bags' / 'cows_3x1h'
+AGENTS = ['cow_1', 'cow_2', 'cow_3']
+ROBOTS = ['robot_1', 'robot_2', 'robot_3']
+DT = 10.0
+RATE = 40.0
+
+
+def _stop(procs):
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + 10
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def _poses(msg):
+    return np.array([[p.position.x, p.position.y] for p in msg.poses], dtype=float)
+
+
+@pytest.mark.slow
+def test_robots_learn_from_replayed_cows_and_move_like_them(tmp_path, ros_env, console_script):
+    fence = Paddock().fence
+    params = demo_parameters(BAG, tmp_path, AGENTS, ROBOTS, RATE, DT, fence,
+                             first_positions(BAG, AGENTS, PADDOCK_DATUM), (8, 6),
+                             (-200.0, 200.0, -150.0, 150.0))
+    params['replay']['ros__parameters']['exit_when_done'] = True
+    params['replay']['ros__parameters']['wait_for_subscribers'] = 1
+    params['gps_ingest']['ros__parameters']['fix_queue_depth'] = 1000
+    params['record'] = {'ros__parameters': {
+        'bag': str(tmp_path / 'graph_bag'),
+        'topics': ['/herd/poses', '/fleet/poses', '/herd/model/params']}}
+    params_file = tmp_path / 'graph.yaml'
+    params_file.write_text(yaml.dump(params, Dumper=_NoAliasDumper, sort_keys=False))
+    args = ['--ros-args', '--params-file', str(params_file)]
+    logs = {}
+    procs = []
+    try:
+        for name in ('record', 'fleet_sim', 'controller', 'estimator', 'gps_ingest'):
+            logs[name] = open(tmp_path / f'{name}.log', 'w')
+            procs.append(subprocess.Popen([console_script(name), *args], env=ros_env,
+                                          stdout=logs[name], stderr=subprocess.STDOUT))
+        time.sleep(3.0)   # discovery before the bag starts
+        logs['replay'] = open(tmp_path / 'replay.log', 'w')
+        replay = subprocess.Popen([console_script('replay'), *args], env=ros_env,
+                                  stdout=logs['replay'], stderr=subprocess.STDOUT)
+        procs.append(replay)
+        assert replay.wait(timeout=400) == 0, (tmp_path / 'replay.log').read_text()[-2000:]
+        time.sleep(2.0)
+        for p, name in zip(procs[:-1], logs):
+            assert p.poll() is None, f'{name} died: ' + (tmp_path / f'{name}.log').read_text()[
+                -2000:]
+    finally:
+        _stop(procs)
+        for f in logs.values():
+            f.close()
+
+    herd_t, herd_p, fleet_t, fleet_p, dampings = [], [], [], [], []
+    for topic, _, _, msg in read_messages(tmp_path / 'graph_bag'):
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec \
+            if hasattr(msg, 'header') else None
+        if topic == '/herd/poses':
+            herd_t.append(stamp)
+            herd_p.append(_poses(msg))
+        elif topic == '/fleet/poses':
+            fleet_t.append(stamp)
+            fleet_p.append(_poses(msg))
+        else:
+            n, p = msg.layout.dim[0].size, msg.layout.dim[1].size
+            dampings.append(np.asarray(msg.data)[:n * p].reshape(n, p)[:, 0])
+    herd_t, herd_p = np.array(herd_t), np.array(herd_p)
+    fleet_t, fleet_p = np.array(fleet_t), np.array(fleet_p)
+    order = np.argsort(herd_t)
+    herd_t, herd_p = herd_t[order], herd_p[order]
+    assert len(herd_t) > 300 and np.allclose(np.diff(herd_t), DT)
+
+    # parameters converge: the damping estimates settle over the last half of the hour
+    d = np.array(dampings)
+    assert len(d) > 300 and np.isfinite(d).all()
+    half = d[len(d) // 2:]
+    assert (half.max(0) - half.min(0) < 0.25).all(), half.max(0) - half.min(0)
+    assert (np.abs(d[-1]) < 1).all()
+
+    # robots at the herd ticks (last fleet pose at or before each tick), once they move
+    order = np.argsort(fleet_t)
+    fleet_t, fleet_p = fleet_t[order], fleet_p[order]
+    idx = np.searchsorted(fleet_t, herd_t, side='right') - 1
+    ok = idx >= 0
+    robots = fleet_p[idx[ok]]
+    moved = np.linalg.norm(robots - robots[0], axis=-1).max(0)
+    assert (moved > 5.0).all(), f'robots hardly moved: {moved}'
+    inside = PolyPath(np.vstack([fence, fence[:1]])).contains_points(fleet_p.reshape(-1, 2))
+    assert inside.all(), 'a robot left the fence'
+    start = np.argmax(np.linalg.norm(robots - robots[0], axis=-1).max(1) > 0.5)
+    robot_run = HerdTrajectory(herd_t[ok][start:], ROBOTS, robots[start:])
+    cow_run = HerdTrajectory(herd_t, AGENTS, herd_p)
+    cows, bots = herd_statistics(cow_run), herd_statistics(robot_run)
+    table = {key: (np.mean([cows[a][key] for a in AGENTS]),
+                   np.mean([bots[b][key] for b in ROBOTS])) for key in STATISTICS}
+    for key, (c, r) in table.items():
+        assert abs(r - c) <= 0.30 * c, (key, table)
