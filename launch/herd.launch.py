@@ -22,8 +22,9 @@ from launch_ros.parameter_descriptions import ParameterValue
 AGENTS = ['cow_1', 'cow_2', 'cow_3']
 ROBOTS = ['robot_1', 'robot_2', 'robot_3']
 DT = 10.0
-FIELD_GRID = [6, 6]
-FIELD_BOUNDS = [-60.0, 60.0, -60.0, 60.0]
+FIELD_GRID = [4, 3]          # coarse: one hour of collar data cannot carry a fine field
+FIELD_BOUNDS = [-200.0, 200.0, -150.0, 150.0]   # the paddock, about the datum below
+DATUM = [27.0153, -108.7937, 0.0]
 
 
 def generate_launch_description():
@@ -50,10 +51,12 @@ def generate_launch_description():
              parameters=[str(config / 'replay.yaml'),
                          {'bag': bag, 'rate': ParameterValue(rate, value_type=float),
                           'publish_clock': True}]),
-        node('gps_ingest', herd),
+        node('gps_ingest', herd, {'datum': DATUM}),
         node('estimator', herd, field, {'law': 'pairwise'}),
         node('controller', field, {'robots': ROBOTS, 'assignment': AGENTS, 'agents': AGENTS,
                                    'dt': DT, 'mode': 'herd_model', 'model_source': 'topic',
-                                   'noise': True}),
-        node('fleet_sim', {'robots': ROBOTS}),
+                                   'model_min_updates': 30, 'noise': True,
+                                   'rate_hz': 1.0 / DT, 'safety_horizon_s': DT,
+                                   'odom_timeout_s': 3 * DT}),
+        node('fleet_sim', {'robots': ROBOTS, 'datum': DATUM, 'cmd_timeout_s': 1.5 * DT}),
     ])

@@ -19,8 +19,8 @@ from matplotlib.path import Path as PolyPath
 
 from conftest import REPO
 from herd_ros.io.bags import read_messages
-from herd_ros.nodes.live_demo import PADDOCK_DATUM, _NoAliasDumper, demo_parameters, \
-    first_positions
+from herd_ros.nodes.live_demo import DEMO_FIELD_BOUNDS, DEMO_FIELD_GRID, PADDOCK_DATUM, \
+    _NoAliasDumper, demo_parameters, first_positions
 from herd_ros.simulation.statistics import STATISTICS, herd_statistics
 from herd_ros.synthesis.cow_scenario import Paddock
 from herd_ros.trajectory import HerdTrajectory
@@ -53,8 +53,8 @@ def _poses(msg):
 def test_robots_learn_from_replayed_cows_and_move_like_them(tmp_path, ros_env, console_script):
     fence = Paddock().fence
     params = demo_parameters(BAG, tmp_path, AGENTS, ROBOTS, RATE, DT, fence,
-                             first_positions(BAG, AGENTS, PADDOCK_DATUM), (8, 6),
-                             (-200.0, 200.0, -150.0, 150.0))
+                             first_positions(BAG, AGENTS, PADDOCK_DATUM), DEMO_FIELD_GRID,
+                             DEMO_FIELD_BOUNDS)
     params['replay']['ros__parameters']['exit_when_done'] = True
     params['replay']['ros__parameters']['wait_for_subscribers'] = 1
     params['gps_ingest']['ros__parameters']['fix_queue_depth'] = 1000
@@ -128,5 +128,7 @@ def test_robots_learn_from_replayed_cows_and_move_like_them(tmp_path, ros_env, c
     cows, bots = herd_statistics(cow_run), herd_statistics(robot_run)
     table = {key: (np.mean([cows[a][key] for a in AGENTS]),
                    np.mean([bots[b][key] for b in ROBOTS])) for key in STATISTICS}
+    print('herd statistics (cows, robots):', {k: (round(c, 3), round(r, 3))
+                                               for k, (c, r) in table.items()})
     for key, (c, r) in table.items():
         assert abs(r - c) <= 0.30 * c, (key, table)

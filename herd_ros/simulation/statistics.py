@@ -2,7 +2,8 @@
 
 Per agent i, over all steps τ and all other agents j:
     mean_distance, std_distance — mean and standard deviation of ‖p_j^τ − p_i^τ‖;
-    mean_speed, std_speed       — mean and standard deviation of ‖p_i^{τ+1} − p_i^τ‖/Δt.
+    mean_speed, std_speed       — mean and standard deviation of ‖p_i^{τ+1} − p_i^τ‖/Δt,
+                                  over consecutive steps of the clock only (gaps skipped).
 """
 from __future__ import annotations
 
@@ -23,7 +24,12 @@ def herd_statistics(runs: list[HerdTrajectory] | HerdTrajectory) -> dict[str, di
     for r in runs:
         p = r.positions[:, [r.agents.index(a) for a in agents]]
         d = np.sqrt(((p[:, None, :, :] - p[:, :, None, :]) ** 2).sum(-1))  # (T, N, N)
-        v = np.sqrt((np.diff(p, axis=0) ** 2).sum(-1)) / r.dt
+        # speeds only between consecutive steps of the clock (a recording with gaps must
+        # not turn a missing stretch into one fast step)
+        steps = np.diff(r.times)
+        dt = float(np.min(steps)) if len(steps) else 1.0
+        regular = np.abs(steps - dt) <= 1e-6 * max(dt, 1.0)
+        v = np.sqrt((np.diff(p, axis=0) ** 2).sum(-1))[regular] / dt
         for i, a in enumerate(agents):
             dists[a].append(np.delete(d[:, i, :], i, axis=1).ravel())
             speeds[a].append(v[:, i])
