@@ -21,7 +21,8 @@ def test_launch_file_names_real_executables_and_configs():
     nodes = set(re.search(r"NODES = \[(.*?)\]", setup).group(1).replace("'", '').replace(
         ' ', '').split(','))
     started = {s for s in strings if s in nodes}
-    assert started == nodes, f'launch starts {sorted(started)}, package has {sorted(nodes)}'
+    pipeline = nodes - {'record'}   # the graph; record is started by hand when wanted
+    assert started == pipeline, f'launch starts {sorted(started)}, graph is {sorted(pipeline)}'
     for name in nodes:
         assert (REPO / 'config' / f'{name}.yaml').is_file(), f'config/{name}.yaml missing'
     assert 'generate_launch_description' in {n.name for n in ast.walk(tree)
