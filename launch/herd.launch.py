@@ -21,7 +21,7 @@ from launch_ros.parameter_descriptions import ParameterValue
 
 AGENTS = ['cow_1', 'cow_2', 'cow_3']
 ROBOTS = ['robot_1', 'robot_2', 'robot_3']
-DT = 10.0
+DT = 20.0
 FIELD_GRID = [4, 3]          # coarse: one hour of collar data cannot carry a fine field
 FIELD_BOUNDS = [-200.0, 200.0, -150.0, 150.0]   # the paddock, about the datum below
 DATUM = [27.0153, -108.7937, 0.0]

@@ -28,7 +28,7 @@ from herd_ros.trajectory import HerdTrajectory
 BAG = REPO / 'bags' / 'cows_3x1h'
 AGENTS = ['cow_1', 'cow_2', 'cow_3']
 ROBOTS = ['robot_1', 'robot_2', 'robot_3']
-DT = 10.0
+DT = 20.0
 RATE = 40.0
 
 
@@ -103,11 +103,11 @@ def test_robots_learn_from_replayed_cows_and_move_like_them(tmp_path, ros_env, c
     fleet_t, fleet_p = np.array(fleet_t), np.array(fleet_p)
     order = np.argsort(herd_t)
     herd_t, herd_p = herd_t[order], herd_p[order]
-    assert len(herd_t) > 300 and np.allclose(np.diff(herd_t), DT)
+    assert len(herd_t) > 0.9 * 3600 / DT and np.allclose(np.diff(herd_t), DT)
 
     # parameters converge: the damping estimates settle over the last half of the hour
     d = np.array(dampings)
-    assert len(d) > 300 and np.isfinite(d).all()
+    assert len(d) > 0.9 * 3600 / DT and np.isfinite(d).all()
     half = d[len(d) // 2:]
     assert (half.max(0) - half.min(0) < 0.25).all(), half.max(0) - half.min(0)
     assert (np.abs(d[-1]) < 1).all()

@@ -117,7 +117,9 @@ def demo_parameters(bag, out_dir, agents, robots, rate, dt, fence, start, grid, 
         'controller': {'ros__parameters': {
             **common, **field, 'robots': list(robots), 'assignment': list(agents),
             'agents': list(agents), 'dt': float(dt), 'mode': 'herd_model',
-            'model_source': 'topic', 'model_min_updates': 30, 'noise': True, 'seed': 0,
+            # the estimator's first five minutes of data are too few for a usable law
+            'model_source': 'topic', 'model_min_updates': int(np.ceil(300.0 / dt)),
+            'noise': True, 'seed': 0,
             # one command per model step: the robots run the learned discrete law exactly
             'rate_hz': 1.0 / float(dt), 'safety_horizon_s': float(dt),
             'max_speed': 1.5, 'kinematics': 'holonomic', 'odom_timeout_s': 3.0 * float(dt),
@@ -136,7 +138,7 @@ DEMO_FIELD_GRID = (4, 3)
 DEMO_FIELD_BOUNDS = (-200.0, 200.0, -150.0, 150.0)
 
 
-def run_live_demo(bag, out_dir, rate: float = 40.0, dt: float = 10.0, grid=DEMO_FIELD_GRID,
+def run_live_demo(bag, out_dir, rate: float = 40.0, dt: float = 20.0, grid=DEMO_FIELD_GRID,
                   bounds=DEMO_FIELD_BOUNDS, fence=None, progress_period_s=5.0,
                   log=print) -> dict:
     """Play ``bag`` through the composed graph; returns the summary written to ``out_dir``."""
