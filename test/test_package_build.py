@@ -54,3 +54,37 @@ def test_share_directory_found_by_ament_index(colcon_install):
     assert Path(share) == colcon_install / 'herd_ros' / 'share' / 'herd_ros'
     assert (Path(share) / 'package.xml').is_file()
     assert '.yaml' in configs, configs
+
+
+def test_colcon_installed_controller_runs_with_a_model_file(colcon_install, tmp_path, ros_env):
+    """`install/herd_ros/lib/herd_ros/controller --ros-args --params-file <model file>` starts,
+    drives its robots' topics and stops cleanly (the colcon install, not the venv's copy)."""
+    import signal
+    import time
+
+    from herd_ros.model.model_file import save_model
+    from herd_ros.synthesis.known_truth import make_truth_model
+
+    model_file = save_model(make_truth_model(3, seed=1), tmp_path / 'model.yaml')
+    env = dict(ros_env)
+    site = next((colcon_install / 'herd_ros' / 'lib').glob('python3*/site-packages'))
+    env['PYTHONPATH'] = f'{site}:{env.get("PYTHONPATH", "")}'
+    env['AMENT_PREFIX_PATH'] = f'{colcon_install / "herd_ros"}:{sys.prefix}'
+    exe = colcon_install / 'herd_ros' / 'lib' / 'herd_ros' / 'controller'
+    proc = subprocess.Popen([str(exe), '--ros-args', '--params-file', str(model_file),
+                             '-p', 'robots:=[robot_1, robot_2, robot_3]'], cwd=tmp_path,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        time.sleep(4.0)
+        assert proc.poll() is None, proc.communicate()[0]
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, out
+    assert 'herd_model' in out and 'Traceback' not in out, out
+    assert str(site) in subprocess.run(
+        [sys.executable, '-c', 'import herd_ros, os; print(os.path.dirname(herd_ros.__file__))'],
+        env=env, capture_output=True, text=True, timeout=60, cwd=tmp_path).stdout
