@@ -43,8 +43,6 @@ either the previous or the new checkpoint, never half a file.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,8 +51,9 @@ import numpy as np
 from herd_ros.errors import HerdInputError
 from herd_ros.estimation.rls import HerdRLS
 from herd_ros.model.herd_model import AgentLaw, HerdModel
+from herd_ros.model.model_file import atomic_open
 from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS, FieldGrid, RbfBasis
-from herd_ros.model.shared_law import (DistanceProfile, SharedLawModel, neighbor_pairs,
+from herd_ros.model.shared_law import (DistanceProfile, SharedLawModel,
                                        shared_rows)
 
 LAWS = ('pairwise', 'shared')
@@ -426,20 +425,9 @@ class OnlineHerdEstimator:
 
     def save_checkpoint(self, path) -> Path:
         """Write the whole state to ``path`` (.npz) by write-then-rename."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
-        try:
-            with os.fdopen(fd, 'wb') as fh:
-                np.savez(fh, **self.state())
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        return path
+        with atomic_open(path, 'wb') as fh:
+            np.savez(fh, **self.state())
+        return Path(path)
 
     def load_checkpoint(self, path) -> bool:
         """Resume from ``path`` if it exists; False if absent. Raises HerdInputError when the

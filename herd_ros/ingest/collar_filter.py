@@ -59,7 +59,7 @@ forward with the growing covariance of ``Q(τ)``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from filterpy.common import Q_discrete_white_noise

@@ -24,7 +24,7 @@ Two drivers give the same snapshots for the same fixes:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -26,7 +26,6 @@ Steps (each a module of :mod:`herd_ros.ingest`):
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -34,7 +33,7 @@ import pandas as pd
 from herd_ros.errors import HerdInputError
 from herd_ros.ingest.collar_filter import COUNTERS, CollarFilter, FilterParams, STATUS_NO_FIX
 from herd_ros.ingest.geodesy import geodetic_to_enu
-from herd_ros.ingest.herd_clock import (StateTimeline, TimelineRecorder, resample_timelines,
+from herd_ros.ingest.herd_clock import (TimelineRecorder, resample_timelines,
                                         tick_grid)
 from herd_ros.ingest.smoothing import gaussian_fir, rts_on_ticks
 from herd_ros.io.gps_files import normalise_fixes, read_fix_file, sniff_format

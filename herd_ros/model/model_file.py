@@ -21,6 +21,7 @@ from __future__ import annotations
 import os
 import re
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -133,14 +134,16 @@ def dump_parameters(model_body: dict, node: str = '/**') -> str:
                      Dumper=_FlowListDumper, sort_keys=False, width=100)
 
 
-def write_atomic(path, text: str) -> Path:
-    """Write ``text`` to ``path`` by write-then-rename, so readers never see half a file."""
+@contextmanager
+def atomic_open(path, mode: str = 'w'):
+    """Open a temporary file next to ``path``; on success it is fsynced and renamed over
+    ``path`` (readers never see half a file, a crash leaves the old one), else removed."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
     try:
-        with os.fdopen(fd, 'w') as fh:
-            fh.write(text)
+        with os.fdopen(fd, mode) as fh:
+            yield fh
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
@@ -148,7 +151,13 @@ def write_atomic(path, text: str) -> Path:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
-    return path
+
+
+def write_atomic(path, text: str) -> Path:
+    """Write ``text`` to ``path`` by write-then-rename (:func:`atomic_open`)."""
+    with atomic_open(path, 'w') as fh:
+        fh.write(text)
+    return Path(path)
 
 
 def save_model(model: HerdModel, path) -> Path:

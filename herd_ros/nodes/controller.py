@@ -32,7 +32,7 @@ from herd_ros.control.safety import Fence, Obstacles, safe_velocity, stale_mask
 from herd_ros.errors import HerdInputError
 from herd_ros.model.model_file import check_agent_id, model_from_dict
 from herd_ros.model.rbf_field import FieldGrid
-from herd_ros.nodes.fleet_sim import declare_parameters
+from herd_ros.nodes.ros_common import declare_parameters
 from herd_ros.nodes.flocking_mode import FlockingPolicy
 from herd_ros.nodes.imitation_mode import ImitationPolicyMode
 from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, diagnostic_array,

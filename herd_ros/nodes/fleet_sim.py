@@ -19,7 +19,6 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose, PoseArray, Twist
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
@@ -28,7 +27,8 @@ from herd_ros.control.safety import Fence, Obstacles
 from herd_ros.errors import HerdInputError
 from herd_ros.ingest.geodesy import enu_to_geodetic
 from herd_ros.model.model_file import check_agent_id
-from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, diagnostic_array,
+from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, declare_parameters,
+                                       diagnostic_array,
                                        diagnostic_status, run_node)
 
 DEFAULTS = {
@@ -52,19 +52,6 @@ DEFAULTS = {
 }
 
 
-def declare_parameters(node: Node, defaults: dict) -> dict:
-    """Declare every parameter (dynamic typing: ``1`` is accepted for ``1.0``), return values.
-
-    Parameters already declared from overrides keep their given value.
-    """
-    dynamic = ParameterDescriptor(dynamic_typing=True)
-    values = {}
-    for name, default in defaults.items():
-        if not node.has_parameter(name):
-            node.declare_parameter(name, default, dynamic)
-        value = node.get_parameter(name).value
-        values[name] = default if value is None else value
-    return values
 
 
 def yaw_to_quaternion(yaw: float):

@@ -18,7 +18,7 @@ from herd_ros.control.flocking_command import (TargetEstimate, centroid_of_valid
                                                flocking_velocity_command)
 from herd_ros.errors import HerdInputError
 from herd_ros.flocking.olfati_saber import CircularObstacles, FlockingParams
-from herd_ros.nodes.fleet_sim import declare_parameters
+from herd_ros.nodes.ros_common import declare_parameters
 from herd_ros.nodes.ros_common import ParameterError, stamp_to_seconds
 
 FLOCKING_DEFAULTS = {

@@ -54,7 +54,6 @@ import rclpy.executors
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose, PoseArray
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import NavSatFix
@@ -65,7 +64,8 @@ from herd_ros.ingest.geodesy import geodetic_to_enu
 from herd_ros.ingest.herd_clock import HerdClock, HerdSnapshot
 from herd_ros.ingest.pipeline import choose_datum
 from herd_ros.model.model_file import check_agent_id
-from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, diagnostic_array,
+from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, declare_parameters,
+                                       diagnostic_array,
                                        diagnostic_status, run_node, seconds_to_stamp,
                                        stamp_to_seconds)
 
@@ -101,17 +101,6 @@ FILTER_FIELDS = ('accel_std', 'default_position_std', 'position_std_floor',
                  'reinit_after_rejections', 'reinit_after_gap')
 
 
-def declare_parameters(node: Node, defaults: dict) -> dict:
-    """Declare every parameter (dynamic typing, so ``1`` is accepted for ``1.0``), return
-    their values."""
-    dynamic = ParameterDescriptor(dynamic_typing=True)
-    values = {}
-    for name, default in defaults.items():
-        if not node.has_parameter(name):
-            node.declare_parameter(name, default, dynamic)
-        value = node.get_parameter(name).value
-        values[name] = default if value is None else value
-    return values
 
 
 class GpsIngestConfig:

@@ -24,15 +24,13 @@ import sys
 import time
 from pathlib import Path
 
-from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rcl_interfaces.msg import ParameterDescriptor
 
 from herd_ros.errors import HerdInputError
 from herd_ros.io.bags import BagWriter
-from herd_ros.nodes.ros_common import ParameterError, run_node
+from herd_ros.nodes.ros_common import ParameterError, declare_parameters, run_node
 
 DEFAULTS = {
     'bag': '',
@@ -51,22 +49,6 @@ def default_bag_name(now: float | None = None) -> str:
     return time.strftime('rosbag2_%Y_%m_%d-%H_%M_%S', time.localtime(now))
 
 
-def declare_parameters(node: Node, defaults: dict) -> dict:
-    dynamic = ParameterDescriptor(dynamic_typing=True)
-    values = {}
-    for name, default in defaults.items():
-        if not node.has_parameter(name):
-            if isinstance(default, Parameter.Type):
-                node.declare_parameter(name, default)
-            else:
-                node.declare_parameter(name, default, dynamic)
-        try:
-            value = node.get_parameter(name).value
-        except ParameterUninitializedException:
-            value = None
-        values[name] = ([] if isinstance(default, Parameter.Type) else default) \
-            if value is None else value
-    return values
 
 
 def bag_qos(profile: QoSProfile):

@@ -27,19 +27,17 @@ import importlib
 import threading
 import time
 
-import rclpy
 from rclpy.duration import Duration
-from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
-from rcl_interfaces.msg import ParameterDescriptor
 from rosgraph_msgs.msg import Clock
 
 from herd_ros.errors import HerdInputError
 from herd_ros.io.bags import bag_info, read_raw_messages
-from herd_ros.nodes.ros_common import ParameterError, run_node, seconds_to_stamp
+from herd_ros.nodes.ros_common import (ParameterError, declare_parameters, run_node,
+                                       seconds_to_stamp)
 
 DEFAULTS = {
     'bag': '',
@@ -103,22 +101,6 @@ def qos_profile(recorded, default: str, depth: int) -> QoSProfile:
                       durability=DurabilityPolicy.VOLATILE)
 
 
-def declare_parameters(node: Node, defaults: dict) -> dict:
-    dynamic = ParameterDescriptor(dynamic_typing=True)
-    values = {}
-    for name, default in defaults.items():
-        if not node.has_parameter(name):
-            if isinstance(default, Parameter.Type):
-                node.declare_parameter(name, default)
-            else:
-                node.declare_parameter(name, default, dynamic)
-        try:
-            value = node.get_parameter(name).value
-        except ParameterUninitializedException:      # typed, no default (string[])
-            value = None
-        values[name] = ([] if isinstance(default, Parameter.Type) else default) \
-            if value is None else value
-    return values
 
 
 class ReplayConfig:

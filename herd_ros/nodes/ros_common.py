@@ -11,7 +11,10 @@ import sys
 import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.exceptions import ParameterUninitializedException
 from rclpy.executors import ExternalShutdownException
+from rclpy.parameter import Parameter
 
 OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
                           DiagnosticStatus.STALE)
@@ -19,6 +22,31 @@ OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, Diagnostic
 
 class ParameterError(ValueError):
     """A parameter value a node cannot run with; the message names the parameter."""
+
+
+def declare_parameters(node, defaults: dict) -> dict:
+    """Declare every parameter of ``defaults`` and return {name: value}.
+
+    A default that is a value is declared with dynamic typing (so ``1`` is accepted for
+    ``1.0`` and the node validates types itself); a default that is a ``Parameter.Type``
+    (e.g. ``STRING_ARRAY``, whose empty default ROS cannot infer) is declared typed and reads
+    as ``[]`` when not given. Parameters already declared from overrides keep their value.
+    """
+    dynamic = ParameterDescriptor(dynamic_typing=True)
+    values = {}
+    for name, default in defaults.items():
+        typed = isinstance(default, Parameter.Type)
+        if not node.has_parameter(name):
+            if typed:
+                node.declare_parameter(name, default)
+            else:
+                node.declare_parameter(name, default, dynamic)
+        try:
+            value = node.get_parameter(name).value
+        except ParameterUninitializedException:      # typed, no default given
+            value = None
+        values[name] = ([] if typed else default) if value is None else value
+    return values
 
 
 def stamp_to_seconds(stamp) -> float:
