@@ -17,20 +17,17 @@ fixture); every subprocess is stopped with SIGINT, then SIGKILL.
   has odometry and DDS latencies of a few tens of ms, i.e. under one model step).
 """
 import math
-import signal
-import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, PoseArray, Twist
 from matplotlib.path import Path as PolygonPath
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 from scipy.spatial import ConvexHull
+
+from ros_harness import TestListener, start as start_process, stop
 
 from herd_ros.imitation.boids import ImitationPolicy, random_starts, simulate
 from herd_ros.imitation.metrics import amd
@@ -52,45 +49,6 @@ def poses_xy(msg):
     return np.array([(p.position.x, p.position.y) for p in msg.poses])
 
 
-class Ear:
-    """The test's own rclpy context + node on the subprocesses' domain."""
-
-    def __init__(self, env):
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=int(env['ROS_DOMAIN_ID']))
-        self.node = Node('modes_test', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-
-    def record(self, msg_type, topic):
-        entries = []
-        self.node.create_subscription(msg_type, topic, entries.append, 100)
-        return entries
-
-    def spin(self, seconds, until=None):
-        end = time.time() + seconds
-        while time.time() < end:
-            self.executor.spin_once(timeout_sec=0.01)
-            if until is not None and until():
-                return True
-        return until is None
-
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-
-
-def stop(proc, timeout=5.0):
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 @pytest.fixture
 def graph(ros_env, console_script, tmp_path):
     """``start(name, *ros_args)`` runs a console script; everything is stopped afterwards."""
@@ -98,12 +56,11 @@ def graph(ros_env, console_script, tmp_path):
 
     def start(name, *ros_args):
         logs[name] = tmp_path / f'{name}.log'
-        procs.append(subprocess.Popen([console_script(name), '--ros-args', *ros_args],
-                                      env=ros_env, stdout=open(logs[name], 'w'),
-                                      stderr=subprocess.STDOUT))
+        procs.append(start_process([console_script(name), '--ros-args', *ros_args], ros_env,
+                                   logs[name]))
         return procs[-1]
 
-    ear = Ear(ros_env)
+    ear = TestListener(ros_env, 'modes_test')
     try:
         yield start, ear, (lambda name: logs[name].read_text())
     finally:
@@ -133,9 +90,9 @@ def test_flocking_surrounds_a_moving_target_without_collisions(graph):
     robots = [f'r{k}' for k in range(8)]
     grid = np.column_stack([np.repeat(np.arange(4) * 3.0 - 4.5, 2), np.tile([0.0, 3.0], 4)])
     poses = np.column_stack([grid, np.zeros(8)]).ravel().round(3).tolist()
-    poses_log = ear.record(PoseArray, '/fleet/poses')
-    diags = ear.record(DiagnosticArray, '/diagnostics')
-    cmds = {r: ear.record(Twist, f'/fleet/{r}/cmd_vel') for r in robots}
+    poses_log = ear.record(PoseArray, '/fleet/poses', stamped=False)
+    diags = ear.record(DiagnosticArray, '/diagnostics', stamped=False)
+    cmds = {r: ear.record(Twist, f'/fleet/{r}/cmd_vel', stamped=False) for r in robots}
     target_pub = ear.node.create_publisher(PointStamped, '/test/target', 10)
     t_start = []
 
@@ -205,7 +162,7 @@ def test_imitation_amd_follows_the_offline_simulator(graph, tmp_path):
     p0 = random_starts(1, n, (0.0, 8.0, 0.0, 8.0), rng=11)[0][0]         # (8, 2)
     poses = np.column_stack([p0, np.zeros(n)]).ravel().round(4).tolist()
     p0 = np.asarray(poses).reshape(n, 3)[:, :2]
-    poses_log = ear.record(PoseArray, '/fleet/poses')
+    poses_log = ear.record(PoseArray, '/fleet/poses', stamped=False)
     first_command = []                    # set once a non-zero command is heard (a gate)
 
     def on_cmd(msg):

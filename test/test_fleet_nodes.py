@@ -7,23 +7,20 @@ stale odometry -> zero commands, stale commands -> robots stop, robots not owned
 commanded.
 """
 import math
-import signal
 import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from herd_ros.model.model_file import save_model
 from herd_ros.synthesis.known_truth import make_truth_model
+from ros_harness import TestListener, start, stop
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config'
 FENCE = [-4.0, -4.0, 4.0, -4.0, 4.0, 4.0, -4.0, 4.0]
@@ -32,51 +29,6 @@ POSES = [-1.0, 0.0, 0.0, 1.0, 0.0, 1.57, 0.0, 1.5, -1.57]
 
 def flag(name, values):
     return f'{name}:=[{", ".join(str(v) for v in values)}]'
-
-
-class Listener:
-    """An rclpy context + node on the subprocesses' domain, recording what it hears."""
-
-    def __init__(self, env):
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=int(env['ROS_DOMAIN_ID']))
-        self.node = Node('fleet_test_listener', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.log = {}
-
-    def record(self, msg_type, topic):
-        entries = self.log.setdefault(topic, [])
-        self.node.create_subscription(msg_type, topic,
-                                      lambda m: entries.append((time.time(), m)), 50)
-        return entries
-
-    def spin(self, seconds, until=None):
-        end = time.time() + seconds
-        while time.time() < end:
-            self.executor.spin_once(timeout_sec=0.02)
-            if until is not None and until():
-                return True
-        return until is None
-
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-
-
-def start(cmd, env, log_path):
-    return subprocess.Popen(cmd, env=env, stdout=open(log_path, 'w'), stderr=subprocess.STDOUT)
-
-
-def stop(proc, timeout=5.0):
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 @pytest.fixture
@@ -99,7 +51,7 @@ def graph(ros_env, console_script, tmp_path):
         def output(self, name):
             return (tmp_path / f'{name}.log').read_text()
 
-    listener = Listener(ros_env)
+    listener = TestListener(ros_env, 'fleet_test_listener')
     try:
         yield Graph(), listener
     finally:
