@@ -87,9 +87,15 @@ _signalled = False
 
 
 def _on_signal(signum, frame):
+    """Ctrl-C / SIGTERM: shut the context down, which ends the spin at its next wake-up.
+
+    Raising KeyboardInterrupt instead would land at an arbitrary bytecode inside rclpy (in
+    the middle of building a Task, of converting a message), which rclpy reports as noise
+    at exit; shutting the context down is the clean way out.
+    """
     global _signalled
     _signalled = True
-    raise KeyboardInterrupt
+    rclpy.try_shutdown()
 
 
 def run_node(node_factory, args=None, executor=None) -> int:
