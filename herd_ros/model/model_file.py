@@ -55,7 +55,8 @@ def check_agent_id(agent: str) -> str:
     return str(agent)
 
 
-def _floats(values) -> list[float]:
+def float_list(values) -> list[float]:
+    """Numbers as a list of Python floats (ROS parameter arrays must be homogeneous)."""
     return [float(v) for v in np.asarray(values, dtype=float).ravel()]
 
 
@@ -63,7 +64,7 @@ def model_to_dict(model: HerdModel) -> dict:
     """The ``model:`` mapping of the parameters file."""
     body = {'kind': KIND, 'dt': float(model.dt), 'frame_id': model.frame_id}
     if model.datum is not None:
-        body['datum'] = _floats(model.datum)
+        body['datum'] = float_list(model.datum)
     body['agents'] = [check_agent_id(a) for a in model.agents]
     for a in model.agents:
         law = model.laws[a]
@@ -76,17 +77,17 @@ def model_to_dict(model: HerdModel) -> dict:
         entry = {
             'damping': float(law.damping),
             'neighbors': [check_agent_id(j) for j in law.neighbors],
-            'theta1': _floats(law.theta1),
-            'theta2': _floats(law.theta2),
-            'rbf_centers_x': _floats(law.basis.centers[:, 0]),
-            'rbf_centers_y': _floats(law.basis.centers[:, 1]),
-            'rbf_sigma': _floats(law.basis.sigma),
-            'field_u': _floats(law.field_u),
-            'field_v': _floats(law.field_v),
-            'noise_cov': _floats(law.noise_cov),
+            'theta1': float_list(law.theta1),
+            'theta2': float_list(law.theta2),
+            'rbf_centers_x': float_list(law.basis.centers[:, 0]),
+            'rbf_centers_y': float_list(law.basis.centers[:, 1]),
+            'rbf_sigma': float_list(law.basis.sigma),
+            'field_u': float_list(law.field_u),
+            'field_v': float_list(law.field_v),
+            'noise_cov': float_list(law.noise_cov),
         }
         if law.theta_se is not None:
-            entry['theta_se'] = _floats(law.theta_se)
+            entry['theta_se'] = float_list(law.theta_se)
         body[a] = entry
     return body
 

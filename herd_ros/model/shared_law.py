@@ -52,6 +52,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from herd_ros.errors import HerdInputError
+from herd_ros.model.model_file import (check_agent_id, dump_parameters, float_list,
+                                       load_model_body, write_atomic)
 from herd_ros.model.rbf_field import RbfBasis
 
 KIND = 'schwager2007_shared'
@@ -258,32 +260,27 @@ class SharedLawModel:
 
 
 # -- model file ------------------------------------------------------------------------------
-def _floats(values) -> list[float]:
-    return [float(v) for v in np.asarray(values, dtype=float).ravel()]
-
-
 def shared_model_to_dict(model: SharedLawModel) -> dict:
     """The ``model:`` mapping of a ``schwager2007_shared`` parameters file."""
-    from herd_ros.model.model_file import check_agent_id
     body = {'kind': KIND, 'dt': float(model.dt), 'frame_id': model.frame_id}
     if model.datum is not None:
-        body['datum'] = _floats(model.datum)
+        body['datum'] = float_list(model.datum)
     body['agents'] = [check_agent_id(a) for a in model.agents]
     body['interaction_radius'] = float(model.profile.radius)
-    body['profile_centers'] = _floats(model.profile.centers)
+    body['profile_centers'] = float_list(model.profile.centers)
     body['profile_width'] = float(model.profile.width)
     for i, a in enumerate(model.agents):
         b = model.bases[i]
         if b.size == 0:
             raise HerdInputError(f'agent {a} has no field centre; a ROS parameter array cannot '
                                  f'be empty')
-        entry = {'damping': float(model.damping[i]), 'profile': _floats(model.profile_coef[i]),
-                 'rbf_centers_x': _floats(b.centers[:, 0]),
-                 'rbf_centers_y': _floats(b.centers[:, 1]), 'rbf_sigma': _floats(b.sigma),
-                 'field_u': _floats(model.field_u[i]), 'field_v': _floats(model.field_v[i]),
-                 'noise_cov': _floats(model.noise_cov[i])}
+        entry = {'damping': float(model.damping[i]), 'profile': float_list(model.profile_coef[i]),
+                 'rbf_centers_x': float_list(b.centers[:, 0]),
+                 'rbf_centers_y': float_list(b.centers[:, 1]), 'rbf_sigma': float_list(b.sigma),
+                 'field_u': float_list(model.field_u[i]), 'field_v': float_list(model.field_v[i]),
+                 'noise_cov': float_list(model.noise_cov[i])}
         if model.theta_se is not None:
-            entry['theta_se'] = _floats(model.theta_se[i])
+            entry['theta_se'] = float_list(model.theta_se[i])
         body[a] = entry
     return body
 
@@ -333,12 +330,10 @@ def shared_model_from_dict(body: dict, source: str = 'model') -> SharedLawModel:
 
 def save_shared_model(model: SharedLawModel, path):
     """Write the ``schwager2007_shared`` model file atomically."""
-    from herd_ros.model.model_file import dump_parameters, write_atomic
     return write_atomic(path, dump_parameters(shared_model_to_dict(model)))
 
 
 def load_shared_model(path) -> SharedLawModel:
-    from herd_ros.model.model_file import load_model_body
     return shared_model_from_dict(load_model_body(path), source=str(path))
 
 
