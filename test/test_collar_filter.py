@@ -45,7 +45,7 @@ def run(f, t, z, **kw):
         r = f.update(t[k], z[k, 0], z[k, 1], **kw)
         rec.record()
         reasons.append(r.reason)
-        est[k] = f.x[:2]
+        est[k] = f.x[:2] if f.initialised else np.nan
     return est, np.array(reasons), rec.timeline()
 
 
@@ -113,7 +113,7 @@ def test_measurement_covariance_by_type_and_floor():
 
 
 def test_zero_covariance_fix_does_not_freeze_the_filter():
-    f = CollarFilter(accel_std=0.1)
+    f = CollarFilter(accel_std=0.1, confirm_fixes_lost=1)
     zero = np.zeros(9)
     f.update(0.0, 0.0, 0.0, position_covariance=zero, position_covariance_type=3)
     np.testing.assert_allclose(f.P[:2, :2], 0.25 * np.eye(2))
@@ -123,6 +123,7 @@ def test_zero_covariance_fix_does_not_freeze_the_filter():
 
 def test_rejection_reasons_and_counters():
     f = CollarFilter()
+    assert f.update(-1.0, 0.0, 0.0).reason == 'unconfirmed'   # a new track needs two fixes
     assert f.update(0.0, 0.0, 0.0).reason == 'accepted'
     assert f.update(1.0, 0.5, 0.0, status=-1).reason == 'no_fix'
     assert f.update(2.0, np.nan, 0.0).reason == 'nan'
@@ -134,7 +135,7 @@ def test_rejection_reasons_and_counters():
     assert f.t == 3.0
     assert f.counters == {'accepted': 2, 'rejected_no_fix': 1, 'rejected_nan': 2,
                           'rejected_time': 2, 'rejected_gate': 0, 'rejected_speed': 1,
-                          'reinitialised': 0}
+                          'rejected_unconfirmed': 1, 'reinitialised': 0}
     # STATUS_UNKNOWN (-2, Jazzy) is not NO_FIX: it is gated like any fix
     assert f.update(5.0, 1.0, 1.0, status=-2).accepted
 
@@ -148,16 +149,28 @@ def test_mahalanobis_gate_rejects_what_speed_allows():
     assert r.reason == 'gate' and r.mahalanobis2 > 13.8
 
 
-def test_first_fix_jump_is_recovered_by_reinitialisation():
+def test_wrong_first_fix_never_starts_the_track():
+    """A new track needs two consistent fixes: a lone outlier first is passed over."""
     rng = np.random.default_rng(5)
     t, p = grazing_track(rng, n=120)
     z = p + 2.0 * rng.standard_normal(p.shape)
     z[0] += [60.0, 0.0]                                     # a wrong first fix
     f = CollarFilter(accel_std=0.05)
     est, reasons, _ = run(f, t, z)
-    assert f.counters['reinitialised'] == 1
-    assert list(reasons[1:5]) != ['accepted'] * 4
+    assert list(reasons[:3]) == ['unconfirmed', 'unconfirmed', 'accepted']
+    assert np.isnan(est[:2]).all() and np.hypot(*(est[2] - p[2])) < 8.0
     assert np.sqrt(np.mean((est[20:] - p[20:]) ** 2)) < 2.0
+
+
+def test_wrong_track_is_left_after_reacquire_fixes():
+    """A track that started on a consistent pair of outliers is left once the true fixes,
+    beyond its reach, have lasted ``reacquire_fixes``."""
+    f = CollarFilter(accel_std=0.05, reacquire_fixes=12)
+    f.update(0.0, 500.0, 0.0)
+    f.update(1.0, 500.0, 0.0)                                # confirmed, but wrong
+    reasons = [f.update(2.0 + k, 0.0, 0.0).reason for k in range(12)]
+    assert reasons == ['speed'] * 11 + ['reinitialised']
+    assert np.hypot(*f.x[:2]) < 1.0
 
 
 def test_isolated_jumps_never_reinitialise():
@@ -175,7 +188,7 @@ def test_isolated_jumps_never_reinitialise():
 
 
 def test_dropout_makes_the_collar_stale_with_growing_covariance():
-    f = CollarFilter(stale_after=30.0)
+    f = CollarFilter(stale_after=30.0, confirm_fixes_lost=1)
     for k in range(10):
         f.update(float(k), 0.1 * k, 0.0)
     assert not f.is_stale(9.0) and not f.is_stale(39.0) and f.is_stale(39.5)
@@ -183,8 +196,13 @@ def test_dropout_makes_the_collar_stale_with_growing_covariance():
     assert np.all(np.diff(var) > 0)
     assert f.estimate_at(109.0).x[0] == pytest.approx(f.x[0] + 100 * f.x[2])
     # a fix after a gap longer than reinit_after_gap restarts the filter there
-    r = f.update(1000.0, 500.0, 500.0)
-    assert r.reason == 'reinitialised' and f.x[0] == 500.0
+    # ... once confirmed by a second fix (a lone fix after a long gap may be an outlier)
+    f2 = CollarFilter(stale_after=30.0)
+    for k in range(10):
+        f2.update(float(k), 0.1 * k, 0.0)
+    assert f2.update(1000.0, 500.0, 500.0).reason == 'unconfirmed'
+    r = f2.update(1001.0, 500.0, 500.0)
+    assert r.reason == 'reinitialised' and abs(f2.x[0] - 500.0) < 1e-6
 
 
 def test_bad_parameters_are_reported():
@@ -214,7 +232,7 @@ def test_no_fix_and_nan_never_reach_the_output_and_nan_altitude_is_accepted():
     ref = trajectory_from_fixes(clean, 1.0, datum=datum, accel_std=0.05)
     got = trajectory_from_fixes(both, 1.0, datum=datum, accel_std=0.05)
     c = got.meta['counters']['cow']
-    assert c['accepted'] == 600
+    assert c['accepted'] == 599 and c['rejected_unconfirmed'] == 1   # the first confirms
     assert c['rejected_no_fix'] == 30 and c['rejected_nan'] == 30
     np.testing.assert_array_equal(got.times, ref.times)
     np.testing.assert_allclose(got.positions, ref.positions, atol=1e-9)

@@ -98,7 +98,8 @@ def test_offline_equals_streaming(dt):
 
 def test_snapshot_waits_for_every_agent_or_staleness():
     clock = HerdClock(['a', 'b'], 1.0, stale_after=10.0)
-    fa, fb = CollarFilter(PARAMS), CollarFilter(PARAMS)
+    fa, fb = (CollarFilter(PARAMS, confirm_fixes_lost=1),
+              CollarFilter(PARAMS, confirm_fixes_lost=1))
     fa.update(0.0, 0.0, 0.0)
     fb.update(0.0, 5.0, 0.0)
     assert [s.time for s in clock.observe('a', 0.0, fa)] == []       # b has not spoken
@@ -111,9 +112,16 @@ def test_snapshot_waits_for_every_agent_or_staleness():
     fa.update(10.5, 0.0, 0.0)
     out = clock.observe('a', 10.5, fa)
     assert [s.time for s in out] == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0]
-    # b carries its (constant-velocity) prediction; flagged stale only beyond stale_after
+    # b carries its (constant-velocity) prediction up to stale_after ...
     assert out[0].positions[1] == pytest.approx([5.0, 0.0])
     assert not out[-1].stale[1] and out[-1].position_cov[1, 0, 0] > out[0].position_cov[1, 0, 0]
+    # ... and is missing (NaN), never extrapolated, beyond it
+    out = []
+    for k in range(11, 14):
+        fa.update(float(k), 0.0, 0.0)
+        out += clock.observe('a', float(k), fa)
+    assert out[-1].time > 10.0 and out[-1].stale[1] and np.isnan(out[-1].positions[1]).all()
+    assert np.isnan(out[-1].velocities[1]).all() and np.isfinite(out[-1].positions[0]).all()
 
 
 def test_causal_estimate_ignores_later_fixes():
@@ -128,7 +136,7 @@ def test_causal_estimate_ignores_later_fixes():
 
 
 def test_stationary_exact_fixes_give_the_position_at_every_tick():
-    f = CollarFilter(PARAMS, position_std_floor=0.01)
+    f = CollarFilter(PARAMS, position_std_floor=0.01, confirm_fixes_lost=1)
     rec = TimelineRecorder(f)
     cov = np.zeros(9)
     for t in np.arange(0.0, 20.0, 0.7):

@@ -34,24 +34,50 @@ Each fix goes through these checks in order; the first failing one rejects it wi
 2. ``nan``: east or north not finite (NaN/inf latitude or longitude). A NaN *altitude* is
    fine: the caller converts with ``nan_alt`` (see geodesy).
 3. ``time``: stamp older than or equal to the last accepted one.
-4. ``speed`` — the paper's speed gate (Schwager et al. 2007: 3 m/s), made noise-aware:
-   reject if ``‖z − p̂‖ > max_speed·τ + c·σ`` where ``p̂`` is the last accepted filtered
-   position, ``τ`` the time since it, ``σ² = λ_max(R + P_pp)`` and ``c = √χ²₂(gate_probability)``.
-   Without the ``c·σ`` term a 3 m/s gate on raw 1 Hz fixes with 3 m noise would reject most
-   genuine fixes (two fixes of a standing animal are ~5 m apart).
+4. ``speed`` — a kinematic envelope, the paper's speed gate (Schwager et al. 2007: 3 m/s)
+   made noise-aware and duty-cycle-aware: reject if ``‖z − p̂‖ > d_max(τ) + c·σ`` where
+   ``p̂`` is the last accepted filtered position, ``τ`` the time since it,
+   ``σ² = λ_max(R + P_pp)``, ``c = √χ²₂(gate_probability)`` and
+
+       d_max(τ) = max_speed · min(τ, sprint_s) + cruise_speed · max(τ − sprint_s, 0)
+
+   Animals reach ``max_speed`` only for short bursts; over minutes their average speed is
+   bounded by a lower travel speed. With 1 Hz collars the envelope is the paper's gate;
+   with duty-cycled collars (a fix every 30 s to 5 min) it stops an outlier a few hundred
+   metres off from passing merely because the interval was long. Without the ``c·σ`` term
+   a 3 m/s gate on raw 1 Hz fixes with 3 m noise would reject most genuine fixes.
 5. ``gate``: Mahalanobis gate on the innovation, ``yᵀ S⁻¹ y > χ²₂⁻¹(gate_probability)``,
    ``y = z − H x⁻``, ``S = H P⁻ Hᵀ + R``.
 
-Not locking onto a jump (or onto a wrong first fix): consecutive rejected (speed/gate) fixes
-are kept; when ``reinit_after_rejections`` of them in a row are mutually consistent (each
-step passes the speed gate against the previous one), the filter re-initialises on the first
-of them and runs plain updates through the rest (counter ``reinitialised``). Isolated jumps
-in random directions are not mutually consistent and stay rejected. After a gap longer than
-``reinit_after_gap`` seconds the next valid fix re-initialises the filter directly (the old
-velocity means nothing by then).
+**Outlier bursts and genuine relocations** (reacquisition). Rejected fixes are not thrown
+away: they are kept as *candidate tracks* (chains of mutually consistent fixes, each link
+passing the speed envelope against the previous one), a two-hypothesis form of multiple
+hypothesis tracking (Reid 1979; track confirmation by M consecutive detections as in
+Blackman & Popoli, *Design and Analysis of Modern Tracking Systems*, 1999, §3.2). The
+current track is replaced by a candidate (re-initialised on its first fix and updated
+through the rest; counter ``reinitialised``) when:
 
-Initialisation (first fix or re-init): position = the fix with covariance R, velocity 0 with
-std ``initial_velocity_std`` (default = ``max_speed``).
+* the candidate was **reachable** — its first fix passed the speed envelope and failed only
+  the Mahalanobis gate (the animal could have walked there: a relocation to water) — and has
+  ``confirm_fixes`` consistent fixes (default 3: the track follows within three fixes);
+* the candidate began with a **jump** — its first fix failed the speed envelope (no animal
+  gets there in the time: a GPS outlier burst) — and has ``reacquire_fixes`` consistent
+  fixes (default 12, longer than an outlier burst), so a track that really is wrong (say it
+  started on an outlier) is still left in the end. While such a chain is open, a fix
+  consistent with it belongs to it even if the track's envelope, grown with the time since
+  its last accepted fix, would now admit it: a burst cannot make itself plausible by
+  lasting.
+
+Any fix the track accepts closes the open candidates (the burst is over). Isolated outliers
+in random directions never form a chain.
+
+**Lost tracks** (start of data, a late-starting collar, or no accepted fix for longer than
+``reinit_after_gap``): the old velocity means nothing, and neither does one lone fix, which
+may be an outlier. The fixes form candidate chains and the first with ``confirm_fixes_lost``
+(default 2) consistent fixes initialises the track; until then the collar has no estimate.
+
+Initialisation (first fix of a confirmed chain): position = the fix with covariance R,
+velocity 0 with std ``initial_velocity_std`` (default = ``max_speed``).
 
 Staleness: :meth:`CollarFilter.is_stale` is true when more than ``stale_after`` seconds have
 passed since the last accepted fix; :meth:`CollarFilter.estimate_at` predicts the state
@@ -62,7 +88,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 from scipy.stats import chi2
 
@@ -76,7 +101,7 @@ COVARIANCE_TYPE_KNOWN = 3
 
 #: Counter names, in the order diagnostics list them.
 COUNTERS = ('accepted', 'rejected_no_fix', 'rejected_nan', 'rejected_time', 'rejected_gate',
-            'rejected_speed', 'reinitialised')
+            'rejected_speed', 'rejected_unconfirmed', 'reinitialised')
 
 _H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 
@@ -90,11 +115,15 @@ class FilterParams:
         default_position_std: measurement std (m) for ``COVARIANCE_TYPE_UNKNOWN``.
         position_std_floor: smallest measurement std (m) ever used (floors every R).
         gate_probability: probability mass inside the Mahalanobis gate (χ², 2 dof).
-        max_speed: the paper's speed gate (m/s).
+        max_speed: the paper's speed gate (m/s): the fastest an animal moves, briefly.
+        cruise_speed: the fastest average speed (m/s) sustained beyond ``sprint_s``.
+        sprint_s: how long (s) ``max_speed`` can be kept up.
         stale_after: a collar without an accepted fix for longer (s) is stale.
         initial_velocity_std: velocity std (m/s) at (re)initialisation; None = max_speed.
-        reinit_after_rejections: consistent consecutive rejections that re-initialise.
-        reinit_after_gap: a gap (s) after which the next valid fix re-initialises.
+        confirm_fixes: consistent fixes that confirm a reachable candidate (a relocation).
+        reacquire_fixes: consistent fixes that confirm a candidate that began with a jump.
+        confirm_fixes_lost: consistent fixes that start a lost (or new) track.
+        reinit_after_gap: a gap (s) after which the track is lost (the old state is dropped).
     """
 
     accel_std: float = 0.2
@@ -102,33 +131,51 @@ class FilterParams:
     position_std_floor: float = 0.5
     gate_probability: float = 0.999
     max_speed: float = 3.0
+    cruise_speed: float = 1.5
+    sprint_s: float = 60.0
     stale_after: float = 30.0
     initial_velocity_std: float | None = None
-    reinit_after_rejections: int = 5
+    confirm_fixes: int = 3
+    reacquire_fixes: int = 12
+    confirm_fixes_lost: int = 2
     reinit_after_gap: float = 300.0
 
     def __post_init__(self):
         positive = ('accel_std', 'default_position_std', 'position_std_floor', 'max_speed',
-                    'stale_after', 'reinit_after_gap')
+                    'cruise_speed', 'stale_after', 'reinit_after_gap')
         for name in positive:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise HerdInputError(f'filter parameter {name} must be a positive number, '
                                      f'got {value!r}')
+        if not (np.isfinite(self.sprint_s) and self.sprint_s >= 0):
+            raise HerdInputError(f'filter parameter sprint_s must be >= 0, got '
+                                 f'{self.sprint_s!r}')
+        if self.cruise_speed > self.max_speed:
+            raise HerdInputError(f'filter parameter cruise_speed ({self.cruise_speed!r}) must '
+                                 f'not exceed max_speed ({self.max_speed!r})')
         if not 0.0 < self.gate_probability < 1.0:
             raise HerdInputError(f'filter parameter gate_probability must be in (0, 1), got '
                                  f'{self.gate_probability!r}')
         if self.initial_velocity_std is not None and not self.initial_velocity_std > 0:
             raise HerdInputError('filter parameter initial_velocity_std must be positive, '
                                  f'got {self.initial_velocity_std!r}')
-        if int(self.reinit_after_rejections) < 1:
-            raise HerdInputError('filter parameter reinit_after_rejections must be >= 1, '
-                                 f'got {self.reinit_after_rejections!r}')
+        for name in ('confirm_fixes', 'reacquire_fixes', 'confirm_fixes_lost'):
+            if int(getattr(self, name)) < 1:
+                raise HerdInputError(f'filter parameter {name} must be >= 1, '
+                                     f'got {getattr(self, name)!r}')
 
     @property
     def gate_threshold(self) -> float:
         """χ²₂ quantile of ``gate_probability``: the squared Mahalanobis gate."""
         return float(chi2.ppf(self.gate_probability, df=2))
+
+    def reach(self, tau):
+        """``d_max(τ)`` (m): the farthest an animal travels in ``tau`` seconds (module
+        docstring, check 4)."""
+        tau = np.maximum(np.asarray(tau, dtype=float), 0.0)
+        sprint = np.minimum(tau, self.sprint_s)
+        return self.max_speed * sprint + self.cruise_speed * (tau - sprint)
 
 
 @dataclass
@@ -218,6 +265,15 @@ def measurement_covariance(position_covariance, covariance_type, default_positio
     return (v * lam) @ v.T
 
 
+@dataclass
+class _Candidate:
+    """A chain of mutually consistent fixes the track did not accept (see the module
+    docstring): ``fixes`` [(t, z, R)], ``jump`` = it began with a fix beyond the envelope."""
+
+    fixes: list
+    jump: bool
+
+
 class CollarFilter:
     """Kalman filter of one collar, driven one fix at a time in data time.
 
@@ -231,7 +287,11 @@ class CollarFilter:
         t: data time (s) of the state, NaN before the first accepted fix.
         counters: fixes per outcome, keys :data:`COUNTERS`.
         last_report: stamp of the latest fix seen, accepted or not (NaN before any).
+        candidates: the open candidate tracks (at most :attr:`MAX_CANDIDATES`).
     """
+
+    #: open candidate chains kept at once (the oldest is dropped)
+    MAX_CANDIDATES = 4
 
     def __init__(self, params: FilterParams | None = None, **overrides):
         if params is None:
@@ -247,7 +307,8 @@ class CollarFilter:
         self.t = float('nan')
         self.counters = {name: 0 for name in COUNTERS}
         self.last_report = float('nan')
-        self._rejected_run: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self.candidates: list[_Candidate] = []
+        self._ever_initialised = False
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -294,47 +355,52 @@ class CollarFilter:
             return self._reject('nan', 'latitude or longitude is not finite')
         if not np.isfinite(stamp):
             return self._reject('time', 'stamp is not finite')
-        if self.initialised and stamp <= self.t:
-            return self._reject('time', f'stamp {stamp:.3f} is not after the last accepted '
-                                        f'fix {self.t:.3f}')
+        latest = self.t if self.initialised else -np.inf
+        if self.candidates:
+            latest = max(latest, self.candidates[-1].fixes[-1][0])
+        if stamp <= latest:
+            return self._reject('time', f'stamp {stamp:.3f} is not after the last fix '
+                                        f'{latest:.3f} (time going backwards or a duplicate)')
         z = np.array([float(east), float(north)])
         r = measurement_covariance(position_covariance, position_covariance_type,
                                    p.default_position_std, p.position_std_floor)
-        if not self.initialised or stamp - self.t > p.reinit_after_gap:
-            first = not self.initialised
-            self._initialise(stamp, z, r)
-            self.counters['accepted'] += 1
-            if not first:
-                self.counters['reinitialised'] += 1
-                return FixResult(True, 'reinitialised', f'gap longer than '
-                                 f'{p.reinit_after_gap:g} s: re-initialised on this fix')
-            return FixResult(True, 'accepted', 'first fix: initialised')
+        if self.initialised and stamp - self.t > p.reinit_after_gap:
+            self._lose_track()
+        if not self.initialised:
+            return self._lost_fix(stamp, z, r)
 
         tau = stamp - self.t
-        # speed gate against the last accepted filtered position
+        # speed envelope against the last accepted filtered position
         dist = float(np.hypot(*(z - self.x[:2])))
         sigma = float(np.sqrt(np.linalg.eigvalsh(r + self.P[:2, :2])[-1]))
-        allowed = p.max_speed * tau + self._gate_sigma * sigma
+        allowed = float(p.reach(tau)) + self._gate_sigma * sigma
         if dist > allowed:
-            return self._reject_candidate(stamp, z, r, 'speed',
-                                          f'{dist:.1f} m in {tau:.3g} s exceeds max_speed '
-                                          f'{p.max_speed:g} m/s (allowed {allowed:.1f} m)')
+            return self._candidate_fix(stamp, z, r, 'speed', True,
+                                       f'{dist:.1f} m in {tau:.3g} s is beyond reach '
+                                       f'(allowed {allowed:.1f} m)')
+        # a fix continuing an open jump chain belongs to it (a burst cannot make itself
+        # plausible by lasting long enough for the envelope to grow)
+        for cand in self.candidates:
+            if cand.jump and self._consistent(cand, stamp, z, r):
+                return self._candidate_fix(stamp, z, r, 'speed', True,
+                                           'continues a chain of fixes beyond reach',
+                                           chain=cand)
         # Mahalanobis gate on the innovation
-        x_saved, P_saved = self.kf.x.copy(), self.kf.P.copy()
-        self.kf.predict(F=transition(tau), Q=Q_discrete_white_noise(
-            dim=2, dt=tau, var=p.accel_std ** 2, block_size=2, order_by_dim=False))
-        y = z - self.kf.x[:2, 0]
-        s = self.kf.P[:2, :2] + r
+        F = transition(tau)
+        Q = process_noise(tau, p.accel_std)
+        x_pred = F @ self.x
+        P_pred = F @ self.P @ F.T + Q
+        y = z - x_pred[:2]
+        s = P_pred[:2, :2] + r
         d2 = float(y @ np.linalg.solve(s, y))
         if d2 > self._gate:
-            self.kf.x, self.kf.P = x_saved, P_saved
-            return self._reject_candidate(stamp, z, r, 'gate',
-                                          f'Mahalanobis distance² {d2:.1f} exceeds the '
-                                          f'{p.gate_probability:g} gate {self._gate:.2f}',
-                                          d2)
+            return self._candidate_fix(stamp, z, r, 'gate', False,
+                                       f'Mahalanobis distance² {d2:.1f} exceeds the '
+                                       f'{p.gate_probability:g} gate {self._gate:.2f}', d2=d2)
+        self.kf.predict(F=F, Q=Q)
         self.kf.update(z, R=r)
         self.t = stamp
-        self._rejected_run.clear()
+        self.candidates.clear()
         self.counters['accepted'] += 1
         return FixResult(True, 'accepted', '', d2)
 
@@ -346,40 +412,76 @@ class CollarFilter:
         P[2, 2] = P[3, 3] = self._v0 ** 2
         self.kf.P = P
         self.t = stamp
-        self._rejected_run.clear()
+
+    def _lose_track(self):
+        """No accepted fix for ``reinit_after_gap``: the old state means nothing any more."""
+        self.t = float('nan')
+        self.candidates.clear()
 
     def _reject(self, reason, detail, d2=float('nan')):
         self.counters[f'rejected_{reason}'] += 1
         return FixResult(False, reason, detail, d2)
 
-    def _reject_candidate(self, stamp, z, r, reason, detail, d2=float('nan')):
-        """Reject a fix that failed a gate, and re-initialise if the run of such rejections
-        is long and self-consistent (see the module docstring)."""
-        run = self._rejected_run
-        if run:
-            t_prev, z_prev, r_prev = run[-1]
-            tau = stamp - t_prev
-            sigma = float(np.sqrt(np.linalg.eigvalsh(r + r_prev)[-1]))
-            consistent = (tau > 0 and float(np.hypot(*(z - z_prev)))
-                          <= self.params.max_speed * tau + self._gate_sigma * sigma)
-            if not consistent:
-                run.clear()
-        run.append((stamp, z, r))
-        if len(run) < int(self.params.reinit_after_rejections):
+    def _consistent(self, cand: _Candidate, stamp, z, r) -> bool:
+        """The fix continues ``cand``: within reach of its last fix."""
+        t_prev, z_prev, r_prev = cand.fixes[-1]
+        tau = stamp - t_prev
+        sigma = float(np.sqrt(np.linalg.eigvalsh(r + r_prev)[-1]))
+        return bool(tau > 0 and float(np.hypot(*(z - z_prev)))
+                    <= float(self.params.reach(tau)) + self._gate_sigma * sigma)
+
+    def _attach(self, stamp, z, r, jump: bool, chain=None) -> _Candidate:
+        """Append the fix to ``chain``, to the newest consistent candidate, or to a new one."""
+        if chain is None:
+            chain = next((c for c in reversed(self.candidates)
+                          if self._consistent(c, stamp, z, r)), None)
+        if chain is None:
+            chain = _Candidate([], jump)
+            self.candidates.append(chain)
+            del self.candidates[:-self.MAX_CANDIDATES]
+        chain.fixes.append((stamp, z, r))
+        return chain
+
+    def _lost_fix(self, stamp, z, r) -> FixResult:
+        """A fix while there is no track: confirm a chain of ``confirm_fixes_lost`` fixes."""
+        chain = self._attach(stamp, z, r, jump=False)
+        need = int(self.params.confirm_fixes_lost)
+        if len(chain.fixes) < need:
+            self.counters['rejected_unconfirmed'] += 1
+            return FixResult(False, 'unconfirmed', f'track lost or not started: waiting for '
+                             f'{need} consistent fixes ({len(chain.fixes)} so far)')
+        first = not self._ever_initialised
+        self._adopt(chain)
+        if first:
+            return FixResult(True, 'accepted', f'track started on {need} consistent fixes')
+        self.counters['reinitialised'] += 1
+        return FixResult(True, 'reinitialised', f'track re-acquired on {need} consistent '
+                         f'fixes after a gap')
+
+    def _candidate_fix(self, stamp, z, r, reason, jump, detail, d2=float('nan'), chain=None
+                       ) -> FixResult:
+        """Reject a fix the track refuses, and switch to its candidate chain once it is
+        confirmed (see the module docstring)."""
+        chain = self._attach(stamp, z, r, jump, chain)
+        need = int(self.params.reacquire_fixes if chain.jump else self.params.confirm_fixes)
+        if len(chain.fixes) < need:
             return self._reject(reason, detail, d2)
-        # a consistent track the filter refuses: the filter is what is wrong
-        replay = list(run)
-        self._initialise(replay[0][0], replay[0][1], replay[0][2])
-        for t_k, z_k, r_k in replay[1:]:
+        self._adopt(chain)
+        self.counters['reinitialised'] += 1
+        kind = 'beyond reach' if chain.jump else 'outside the gate'
+        return FixResult(True, 'reinitialised', f'{need} consistent fixes {kind}: the track '
+                         f'moved to them', d2)
+
+    def _adopt(self, chain: _Candidate):
+        """Re-initialise on the chain's first fix and update through the rest."""
+        fixes = list(chain.fixes)
+        self._initialise(*fixes[0])
+        for t_k, z_k, r_k in fixes[1:]:
             tau = t_k - self.t
-            self.kf.predict(F=transition(tau), Q=Q_discrete_white_noise(
-                dim=2, dt=tau, var=self.params.accel_std ** 2, block_size=2,
-                order_by_dim=False))
+            self.kf.predict(F=transition(tau), Q=process_noise(tau, self.params.accel_std))
             self.kf.update(z_k, R=r_k)
             self.t = t_k
-        # the earlier fixes of the run stay counted as rejected; this one re-initialised
+        self.candidates.clear()
+        self._ever_initialised = True
+        # the earlier fixes of the chain stay counted as rejected; this one is accepted
         self.counters['accepted'] += 1
-        self.counters['reinitialised'] += 1
-        return FixResult(True, 'reinitialised',
-                         f'{len(replay)} consistent consecutive rejections: re-initialised '
-                         f'on them', d2)

@@ -8,7 +8,10 @@ The value of agent i at tick t is **causal**: the filter state after the last ac
 with stamp ≤ t (its :class:`StateTimeline` entry), predicted to t with the filter's
 constant-velocity model (:func:`herd_ros.ingest.collar_filter.predict_state`). The agent is
 *stale* at t when that fix is more than ``stale_after`` seconds older than t (or there is
-none); it then carries the prediction, with its growing covariance, and the flag.
+none); a stale agent's position and velocity are **NaN** (missing), never an extrapolation
+(DESIGN.md, "Time"): real collars go silent for hours or days, and a prediction carried
+across such a gap drifts kilometres. Its covariance is kept (it says how uncertain the
+prediction would be).
 
 Two drivers give the same snapshots for the same fixes:
 
@@ -94,6 +97,7 @@ class StateTimeline:
         x[~initialised] = np.nan
         P[~initialised] = np.nan
         stale = ~initialised | (tau > self.stale_after)
+        x[stale] = np.nan
         return x, P, stale, initialised
 
 
@@ -158,10 +162,10 @@ class HerdSnapshot:
     Attributes:
         time: the tick (s, data time).
         agents: agent ids, in order.
-        positions: (N, 2) m; NaN for an agent never initialised.
-        velocities: (N, 2) m/s.
+        positions: (N, 2) m; NaN for a stale agent (or one never initialised).
+        velocities: (N, 2) m/s; NaN where the position is.
         position_cov: (N, 2, 2) m².
-        stale: (N,) the agent carries a prediction older than ``stale_after``.
+        stale: (N,) no accepted fix within ``stale_after`` before the tick (position NaN).
         initialised: (N,) the agent has an accepted fix at or before the tick.
     """
 
@@ -288,5 +292,7 @@ class HerdClock:
                 x[i], P[i] = predict_state(r.x[rec.start], r.P[rec.start], tau, p.accel_std)
                 init[i] = True
                 stale[i] = tau > p.stale_after
+                if stale[i]:
+                    x[i] = np.nan
         return HerdSnapshot(tick, list(self.agents), x[:, :2].copy(), x[:, 2:].copy(),
                             P[:, :2, :2].copy(), stale, init)

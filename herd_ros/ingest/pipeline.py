@@ -16,10 +16,11 @@ Steps (each a module of :mod:`herd_ros.ingest`):
    datum's altitude (a horizontal error of ~1.5 cm per 10 m height error at 10 km).
 3. **Filters** (:mod:`~herd_ros.ingest.collar_filter`): one per agent, fixes in stamp order,
    rejections counted per reason.
-4. **Clock** (:mod:`~herd_ros.ingest.herd_clock`): ticks k·dt; each agent's causal estimate.
-   The trajectory is trimmed to the ticks where every agent is initialised, and the trailing
-   ticks where any agent is stale are dropped (a collar that died is not extrapolated to the
-   end of the recording). Stale ticks inside remain, flagged in ``meta['stale']``.
+4. **Clock** (:mod:`~herd_ros.ingest.herd_clock`): ticks k·dt; each agent's causal estimate,
+   NaN where the collar is stale (no accepted fix within ``stale_after``: never an
+   extrapolation across a silence). The trajectory is trimmed to the ticks from the first to
+   the last where at least two agents have a position; late starts, early ends and silences
+   inside stay NaN (flagged in ``meta['stale']``), and the fit skips them.
 5. **Smoother** (:mod:`~herd_ros.ingest.smoothing`): ``'none'`` (causal filter, identical to
    what the ``gps_ingest`` node publishes), ``'rts'`` or ``'fir'``.
 """
@@ -83,28 +84,83 @@ def choose_datum(fixes: pd.DataFrame, datum=None) -> tuple[float, float, float]:
     return float(row['lat']), float(row['lon']), alt
 
 
-def auto_stale_after(fixes: pd.DataFrame) -> float:
-    """Default ``stale_after``: five median fix intervals, at least 30 s."""
+def fix_intervals(fixes: pd.DataFrame, max_gap: float = 3600.0) -> np.ndarray:
+    """Every collar's positive intervals between consecutive fixes (s), silences longer
+    than ``max_gap`` left out (they say when a collar was off, not how often it fixes)."""
     steps = []
     for _, t in fixes.groupby('agent', sort=False)['time']:
         d = np.diff(np.sort(t.to_numpy(float)))
-        steps.append(d[d > 0])
-    steps = np.concatenate(steps) if steps else np.array([])
-    return float(max(30.0, 5.0 * np.median(steps))) if len(steps) else 30.0
+        steps.append(d[(d > 0) & (d <= max_gap)])
+    return np.concatenate(steps) if steps else np.array([])
+
+
+def auto_stale_after(fixes: pd.DataFrame) -> float:
+    """Default ``stale_after``: three times the 90th percentile of the fix intervals (a
+    collar that missed two fixes in a row is still carried), at least 30 s."""
+    steps = fix_intervals(fixes)
+    return float(max(30.0, 3.0 * np.percentile(steps, 90))) if len(steps) else 30.0
+
+
+#: Herd clock steps :func:`auto_dt` chooses from (s).
+NICE_STEPS = (1.0, 2.0, 5.0, 10.0, 15.0, 20.0, 30.0, 60.0, 120.0, 300.0, 600.0, 900.0,
+              1800.0, 3600.0)
+
+
+def auto_dt(fixes: pd.DataFrame) -> float:
+    """Default herd clock step: the median fix interval, rounded up to a round step
+    (:data:`NICE_STEPS`), so that most ticks have a fresh fix of most collars behind them."""
+    steps = fix_intervals(fixes)
+    if not len(steps):
+        raise HerdInputError('cannot choose the herd clock step: no collar has two fixes '
+                             'at different times; give --dt')
+    med = float(np.median(steps))
+    return next((s for s in NICE_STEPS if s >= 0.999 * med), NICE_STEPS[-1])
+
+
+def auto_filter_params(fixes: pd.DataFrame, **given) -> dict:
+    """Data-derived defaults for the filter parameters not in ``given`` (None = derive):
+    ``stale_after`` (:func:`auto_stale_after`) and ``reinit_after_gap`` (at least
+    ``stale_after``, at least 300 s)."""
+    out = {k: v for k, v in given.items() if v is not None}
+    out.setdefault('stale_after', auto_stale_after(fixes))
+    out.setdefault('reinit_after_gap', max(300.0, float(out['stale_after'])))
+    return out
+
+
+def planar_fixes(table: pd.DataFrame) -> pd.DataFrame:
+    """A fixes table from planar positions (``time, agent, x, y`` in metres, e.g. a
+    real-time location system or an irregular trajectory CSV): columns ``east``/``north``
+    carry the positions and no geodetic conversion is made."""
+    out = pd.DataFrame({'time': table['time'].to_numpy(float),
+                        'agent': table['agent'].astype(str).to_numpy(),
+                        'lat': np.nan, 'lon': np.nan,
+                        'east': table['x'].to_numpy(float),
+                        'north': table['y'].to_numpy(float)})
+    return normalise_fixes(out)
+
+
+def is_planar(fixes: pd.DataFrame) -> bool:
+    """The table holds planar positions (:func:`planar_fixes`), not lat/lon."""
+    return 'east' in fixes.columns and 'north' in fixes.columns
 
 
 def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
                 progress: bool = False):
-    """Run one :class:`CollarFilter` per agent over its fixes in stamp order.
+    """Run one :class:`CollarFilter` per agent over its fixes in stamp order (``datum``
+    None for a planar table).
 
     Returns:
         (filters, timelines, reasons): dicts keyed by agent, and a (len(fixes),) array of
         the outcome of every row (``'accepted'``, ``'reinitialised'`` or the rejection
         reason), aligned with ``fixes``.
     """
-    lat0, lon0, alt0 = datum
-    e, n, _ = geodetic_to_enu(fixes['lat'].to_numpy(float), fixes['lon'].to_numpy(float),
-                              fixes['alt'].to_numpy(float), lat0, lon0, alt0, nan_alt=alt0)
+    if is_planar(fixes):
+        e, n = fixes['east'].to_numpy(float), fixes['north'].to_numpy(float)
+    else:
+        lat0, lon0, alt0 = datum
+        e, n, _ = geodetic_to_enu(fixes['lat'].to_numpy(float), fixes['lon'].to_numpy(float),
+                                  fixes['alt'].to_numpy(float), lat0, lon0, alt0,
+                                  nan_alt=alt0)
     t = fixes['time'].to_numpy(float)
     status = fixes['status'].to_numpy(int)
     cov_type = fixes['position_covariance_type'].to_numpy(int)
@@ -138,7 +194,8 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
     return filters, timelines, reasons
 
 
-def trajectory_from_fixes(fixes: pd.DataFrame, dt: float, datum=None, smoother: str = 'none',
+def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=None,
+                          smoother: str = 'none',
                           *, agents=None, trim: bool = True, progress: bool = False,
                           fir_taps: int = 30, fir_sigma: float = 6.0,
                           **filter_params) -> HerdTrajectory:
@@ -147,23 +204,25 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float, datum=None, smoother: 
     Args:
         fixes: the fixes table (columns time, agent, lat, lon, optionally alt, status,
             position_covariance_type, cov_ee, cov_en, cov_nn).
-        dt: the herd clock step (s).
-        datum: (lat, lon[, alt]) or None for the first valid fix.
+        dt: the herd clock step (s); None = :func:`auto_dt`.
+        datum: (lat, lon[, alt]) or None for the first valid fix (ignored for a planar
+            table, :func:`planar_fixes`).
         smoother: ``'none'``, ``'rts'`` or ``'fir'``.
         agents: agent order (default: sorted ids, independent of file or bag order).
         trim: cut to the ticks where every agent has an estimate and drop trailing stale
             ticks (see the module docstring); False keeps the whole clock with NaN.
         fir_taps, fir_sigma: the FIR's n and σ (steps).
         **filter_params: :class:`FilterParams` fields (accel_std, default_position_std,
-            gate_probability, max_speed, stale_after, ...). ``stale_after`` defaults to
-            :func:`auto_stale_after`.
+            gate_probability, max_speed, stale_after, ...); None or absent
+            ``stale_after`` and ``reinit_after_gap`` come from the data
+            (:func:`auto_filter_params`).
 
     Returns:
         A :class:`HerdTrajectory` with ``meta``: ``datum`` (lat, lon, alt), ``counters``
         {agent: {reason: count}}, ``stale`` (T, N), ``velocities``, ``position_cov``,
         ``smoother``, ``filter_params``, ``trimmed`` (leading, trailing ticks dropped).
     """
-    if not (np.isfinite(dt) and dt > 0):
+    if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise HerdInputError(f'dt must be a positive number of seconds, got {dt!r}')
     if smoother not in SMOOTHERS:
         raise HerdInputError(f'smoother must be one of {", ".join(SMOOTHERS)}, got '
@@ -177,11 +236,14 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float, datum=None, smoother: 
         if unknown:
             raise HerdInputError(f'agent(s) {", ".join(unknown)} have no fixes')
         fixes = fixes[fixes['agent'].isin(agents)].reset_index(drop=True)
-    if 'stale_after' not in filter_params or filter_params['stale_after'] is None:
-        filter_params['stale_after'] = auto_stale_after(fixes)
-    params = FilterParams(**filter_params)
-    datum = choose_datum(fixes, datum)
-    log.info('datum lat %.9f lon %.9f alt %.3f', *datum)
+    if dt is None:
+        dt = auto_dt(fixes)
+    params = FilterParams(**auto_filter_params(fixes, **filter_params))
+    if is_planar(fixes):
+        datum = None
+    else:
+        datum = choose_datum(fixes, datum)
+        log.info('datum lat %.9f lon %.9f alt %.3f', *datum)
     filters, timelines, reasons = run_filters(fixes, datum, params, agents, progress)
     agents = list(filters)
     counters = {a: dict(filters[a].counters) for a in agents}
@@ -195,14 +257,13 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float, datum=None, smoother: 
     traj = resample_timelines(timelines, ticks, agents)
     lead = trail = 0
     if trim:
-        init_all = traj.meta['initialised'].all(axis=1)
-        stale_any = traj.meta['stale'].any(axis=1)
-        if not init_all.any():
-            raise HerdInputError('the agents have no time in common: no tick where every '
-                                 'agent has an accepted fix before it')
-        lead = int(np.argmax(init_all))
-        ok_end = ~stale_any & init_all
-        last = len(ticks) - 1 - int(np.argmax(ok_end[::-1])) if ok_end.any() else lead
+        present = np.isfinite(traj.positions[..., 0]).sum(axis=1)
+        if not (present >= min(2, len(agents))).any():
+            raise HerdInputError('the agents have no time in common: no tick where two '
+                                 'agents have a fresh fix')
+        ok = present >= min(2, len(agents))
+        lead = int(np.argmax(ok))
+        last = len(ticks) - 1 - int(np.argmax(ok[::-1]))
         trail = len(ticks) - 1 - last
         traj = _slice(traj, lead, last + 1)
     if smoother == 'rts':
@@ -217,7 +278,8 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float, datum=None, smoother: 
             raise HerdInputError('the FIR smoother needs every agent at every tick; use '
                                  'trim=True')
         traj.positions = gaussian_fir(traj.positions, fir_taps, fir_sigma)
-    traj.meta.update({'datum': datum, 'counters': counters, 'smoother': smoother,
+    traj.meta.update({'datum': datum, 'dt': float(dt), 'counters': counters,
+                      'smoother': smoother,
                       'filter_params': params, 'trimmed': (lead, trail),
                       'fix_outcomes': reasons})
     return traj
