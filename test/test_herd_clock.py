@@ -117,7 +117,7 @@ def test_snapshot_waits_for_every_agent_or_staleness():
     assert not out[-1].stale[1] and out[-1].position_cov[1, 0, 0] > out[0].position_cov[1, 0, 0]
     # ... and is missing (NaN), never extrapolated, beyond it
     out = []
-    for k in range(11, 14):
+    for k in range(11, 25):             # the filter's stale_after is 20 s
         fa.update(float(k), 0.0, 0.0)
         out += clock.observe('a', float(k), fa)
     assert out[-1].time > 10.0 and out[-1].stale[1] and np.isnan(out[-1].positions[1]).all()
