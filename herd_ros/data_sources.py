@@ -1,6 +1,9 @@
 """Open whatever a user points a command at as herd runs on one clock.
 
-* a trajectory CSV (``time,agent,x,y[,run]``) is read as is;
+* a trajectory CSV (``time,agent,x,y[,run]``) on a uniform clock is read as is (agents
+  missing at some steps are NaN there);
+* a trajectory CSV of irregular planar fixes (real-time location systems, UWB: metres, any
+  intervals) goes through the ingest path without the geodesy;
 * GPS data — a GPS CSV (``time,agent,lat,lon[,alt]``), a Movebank CSV, a GPX file or a
   rosbag2 (directory, ``.mcap`` or ``.db3``) — goes through the ingest path
   (:mod:`herd_ros.ingest.pipeline`: WGS84 → ENU → Kalman filter with gating → uniform clock).
@@ -9,8 +12,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
+
 from herd_ros.errors import HerdInputError
-from herd_ros.trajectory import HerdTrajectory, read_trajectory_csv
+from herd_ros.trajectory import HerdTrajectory, clock_is_uniform, read_trajectory_csv
 
 
 def is_trajectory_csv(path: Path) -> bool:
@@ -23,15 +29,28 @@ def is_trajectory_csv(path: Path) -> bool:
 
 def load_runs(path, dt: float | None = None, smoother: str = 'none',
               **filter_params) -> tuple[list[HerdTrajectory], list | None]:
-    """Runs and the datum (lat, lon, alt) they are relative to (None for a trajectory CSV)."""
+    """Runs and the datum (lat, lon, alt) they are relative to (None for planar data).
+    ``dt`` None: the herd clock step comes from the fix intervals."""
     path = Path(path)
     if not path.exists():
         raise HerdInputError(f'{path}: no such file or directory')
-    if is_trajectory_csv(path):
-        return read_trajectory_csv(path), None
     from herd_ros.ingest import pipeline
-    if dt is None:
-        raise HerdInputError(f'{path}: GPS data needs --dt (the herd clock step, s)')
+    if is_trajectory_csv(path):
+        raw = read_trajectory_csv(path, require_uniform=False)
+        if all(clock_is_uniform(r.times) for r in raw) and dt is None:
+            return read_trajectory_csv(path), None
+        if len(raw) > 1:
+            raise HerdInputError(f'{path}: irregular planar fixes with a run column; ingest '
+                                 f'each run separately')
+        r = raw[0]
+        T, N = r.positions.shape[:2]
+        have = np.isfinite(r.positions[..., 0])
+        tt, ii = np.nonzero(have)
+        table = pd.DataFrame({'time': r.times[tt], 'agent': np.asarray(r.agents)[ii],
+                              'x': r.positions[tt, ii, 0], 'y': r.positions[tt, ii, 1]})
+        traj = pipeline.trajectory_from_fixes(pipeline.planar_fixes(table), dt=dt,
+                                              smoother=smoother, **filter_params)
+        return [traj], None
     fixes = pipeline.load_fixes(path)
     result = pipeline.trajectory_from_fixes(fixes, dt=dt, smoother=smoother, **filter_params)
     traj = result.trajectory if hasattr(result, 'trajectory') else result

@@ -6,8 +6,9 @@ runs (the CSV's optional ``run`` column); each run has its own clock.
 
 The CSV header is ``time,agent,x,y`` (optionally ``run``). :func:`read_trajectory_csv`
 checks everything the fit relies on and raises :class:`HerdInputError` with the file, line
-and field at fault: missing columns, NaN/inf, unsorted or duplicate time stamps, agents
-missing rows, a clock that is not uniform.
+and field at fault: missing columns, NaN/inf, unsorted or duplicate time stamps, a clock that is
+not uniform. An agent without a row at some step of the clock (a stale collar) is missing
+there: its position is NaN, and the fit skips what needs it.
 """
 from __future__ import annotations
 
@@ -57,6 +58,18 @@ class HerdTrajectory:
         """The steps ``start:stop`` of this run (a view of the same arrays)."""
         return HerdTrajectory(self.times[start:stop], list(self.agents),
                               self.positions[start:stop], self.run, dict(self.meta))
+
+
+def clock_is_uniform(times, tol: float = 1e-3) -> bool:
+    """Every step between the sorted distinct ``times`` is a whole number of the median step
+    (within ``tol`` of it): a uniform clock, possibly with whole steps missing."""
+    t = np.unique(np.asarray(times, dtype=float))
+    if len(t) < 3:
+        return False
+    steps = np.diff(t)
+    ratio = steps / float(np.median(steps))
+    whole = np.rint(ratio)
+    return bool((whole >= 1).all() and (np.abs(ratio - whole) / whole <= tol).all())
 
 
 def _fail(path, msg):
@@ -141,30 +154,30 @@ def _build_run(path, run_label, rdf, tol, require_uniform) -> HerdTrajectory:
             pos[idx, i, 1] = adf['y'].to_numpy()
         return HerdTrajectory(times, agents, pos, run_label)
     times = np.unique(rdf['time'].to_numpy())
-    for a in agents:
-        n = len(per_agent[a])
-        if n != len(times):
-            have = set(per_agent[a]['time'].to_numpy().tolist())
-            lacking = [t for t in times if t not in have]
-            _fail(path, f'agent {a}{where} has {n} rows but the run has {len(times)} time '
-                        f'steps (missing e.g. time {lacking[0]}); every agent needs a row at '
-                        f'every step — resample with `herd-ros ingest` first')
     if len(times) < 3:
         _fail(path, f'run{where or ""} has {len(times)} time steps; at least 3 are needed')
     steps = np.diff(times)
     dt = float(np.median(steps))
-    dev = np.abs(steps - dt) / dt
-    if (dev > tol).any():
-        k = int(np.argmax(dev > tol))
+    # a missing agent (no row) is a gap in its track; ticks nobody has are whole missing
+    # steps: both are fine on a uniform clock (positions NaN), any other step is not
+    ratio = steps / dt
+    whole = np.rint(ratio)
+    dev = np.abs(ratio - whole) / np.maximum(whole, 1.0)
+    if (dev > tol).any() or (whole < 1).any():
+        k = int(np.argmax((dev > tol) | (whole < 1)))
         _fail(path, f'the clock{where} is not uniform: step {steps[k]:g} s at time '
                     f'{times[k + 1]:g} vs the usual {dt:g} s; resample with `herd-ros ingest` '
                     f'or split the recording with a run column')
-    pos = np.empty((len(times), len(agents), 2))
+    index = np.concatenate([[0], np.cumsum(whole.astype(int))])
+    grid = times[0] + dt * np.arange(index[-1] + 1)
+    grid[index] = times
+    pos = np.full((len(grid), len(agents), 2), np.nan)
     for i, a in enumerate(agents):
         adf = per_agent[a]
-        pos[:, i, 0] = adf['x'].to_numpy()
-        pos[:, i, 1] = adf['y'].to_numpy()
-    return HerdTrajectory(times, agents, pos, run_label)
+        k = index[np.searchsorted(times, adf['time'].to_numpy())]
+        pos[k, i, 0] = adf['x'].to_numpy()
+        pos[k, i, 1] = adf['y'].to_numpy()
+    return HerdTrajectory(grid, agents, pos, run_label)
 
 
 def write_trajectory_csv(path, runs: list[HerdTrajectory] | HerdTrajectory,

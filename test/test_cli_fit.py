@@ -88,13 +88,10 @@ def _steps(n=50, agents=('a', 'b'), dt=1.0, skip=None):
 BAD = {
     'unsorted rows': lambda p: _write(p, _steps()[:10][::-1] + _steps()[10:]),
     'duplicate timestamps': lambda p: _write(p, _steps()[:4] + _steps()[2:]),
-    'agent missing rows': lambda p: _write(p, _steps(skip=(7, 'b'))),
     'co-located agents': lambda p: _write(p, [f'{k},{a},1.0,2.0\n' for k in range(50)
                                                 for a in 'ab']),
     'NaN': lambda p: _write(p, _steps()[:5] + ['5,a,nan,1\n'] + _steps()[6:]),
     'fewer samples than parameters': lambda p: _write(p, _steps(n=6)),
-    'non-uniform clock': lambda p: _write(p, _steps(n=20) + [r.replace(r.split(',')[0], str(
-        float(r.split(',')[0]) + 0.5), 1) for r in _steps(n=40)[40:]]),
     'missing column': lambda p: _write(p, ['0,a,1\n'], header='time,agent,x\n'),
     'not a file': lambda p: p.parent / 'nope.csv',
 }
@@ -122,3 +119,21 @@ def test_installed_command_reports_errors_without_traceback(tmp_path, console_sc
                                text=True, timeout=60).stdout
     for verb in ('fit', 'simulate', 'report', 'synth', 'import', 'imitate', 'flock', 'demo'):
         assert verb in help_text
+
+
+def test_missing_rows_are_missing_positions_not_errors(tmp_path, capsys):
+    """A stale collar has no row at some steps: the fit skips the samples that need it."""
+    data = _write(tmp_path / 'gappy.csv', _steps(skip=(7, 'b')))
+    status, out, err = run_cli(['fit', data, '-o', tmp_path / 'm.yaml', '--grid', '2x2',
+                                '--min-visits', '1'], capsys)
+    assert status == 0, err
+
+
+def test_irregular_planar_fixes_go_through_the_ingest(tmp_path, capsys):
+    """Irregular stamps (RTLS/UWB positions in metres) are fixes: filtered onto a clock."""
+    rows = [r.replace(r.split(',')[0], str(float(r.split(',')[0]) + 0.37 * (j % 2)), 1)
+            for j, r in enumerate(_steps(n=80))]
+    data = _write(tmp_path / 'rtls.csv', rows)
+    status, out, err = run_cli(['fit', data, '-o', tmp_path / 'm.yaml', '--grid', '2x2',
+                                '--min-visits', '1'], capsys)
+    assert status == 0, err

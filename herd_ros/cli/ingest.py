@@ -1,4 +1,4 @@
-"""`herd-ros ingest DATA -o traj.csv --dt S`: GPS fixes -> filtered trajectory on one clock.
+"""`herd-ros ingest DATA -o traj.csv [--dt S]`: GPS fixes -> filtered trajectory on one clock.
 
 DATA is a GPS CSV, Movebank CSV, GPX file, rosbag2 directory or ``.mcap`` file. The path is
 :func:`herd_ros.ingest.pipeline.trajectory_from_fixes`: exact WGS84 -> ENU about the datum,
@@ -30,8 +30,12 @@ def add_filter_arguments(parser):
     g = parser.add_argument_group('GPS filter (gps_ingest parameters)')
     g.add_argument('--datum', default=None, metavar='LAT,LON[,ALT]',
                    help='ENU origin; default: the first valid fix')
-    g.add_argument('--accel-std', type=float, default=0.2,
-                   help='white-noise acceleration std of the constant-velocity model (m/s^2)')
+    g.add_argument('--accel-std', type=float, default=None,
+                   help='white-noise acceleration std of the motion model (m/s^2); '
+                        'default 0.05')
+    g.add_argument('--velocity-tau', type=float, default=None,
+                   help='velocity correlation time (s) of the correlated random walk; '
+                        '0 = constant velocity; default 120')
     g.add_argument('--default-position-std', type=float, default=5.0,
                    help='fix std (m) when the covariance type is UNKNOWN')
     g.add_argument('--position-std-floor', type=float, default=0.5,
@@ -41,12 +45,13 @@ def add_filter_arguments(parser):
     g.add_argument('--max-speed', type=float, default=3.0,
                    help='speed gate (m/s) against the last accepted fix')
     g.add_argument('--stale-after', type=float, default=None,
-                   help='seconds without an accepted fix before a collar is stale '
-                        '(default: 5 median fix intervals, at least 30 s)')
+                   help='seconds without an accepted fix before a collar is missing (NaN) '
+                        '(default: 3 x the 90th percentile fix interval, at least 30 s)')
 
 
 def filter_kwargs(args) -> dict:
-    return dict(accel_std=args.accel_std, default_position_std=args.default_position_std,
+    return dict(accel_std=args.accel_std, velocity_tau=args.velocity_tau,
+                default_position_std=args.default_position_std,
                 position_std_floor=args.position_std_floor,
                 gate_probability=args.gate_probability, max_speed=args.max_speed,
                 stale_after=args.stale_after)
@@ -56,7 +61,9 @@ def add_arguments(parser):
     parser.add_argument('data', metavar='DATA',
                         help='GPS CSV, Movebank CSV, GPX, rosbag2 directory or .mcap file')
     parser.add_argument('-o', '--output', required=True, help='trajectory CSV to write')
-    parser.add_argument('--dt', type=float, required=True, help='herd clock step (s)')
+    parser.add_argument('--dt', type=float, default=None,
+                        help='herd clock step (s); default: the median fix interval, rounded '
+                             'up to a round step')
     parser.add_argument('--smoother', choices=('none', 'rts', 'fir'), default='none',
                         help='none: causal filter (as the node); rts: Rauch-Tung-Striebel; '
                              'fir: the paper\'s causal Gaussian FIR (n 30, sigma 6)')
@@ -78,8 +85,11 @@ def run(args) -> int:
     stale = traj.meta['stale']
     print(f'datum: lat {lat:.9f} lon {lon:.9f} alt {alt:.3f} '
           f'({"given" if args.datum else "first valid fix"})')
-    print(f'clock: {traj.n_steps} ticks of {args.dt:g} s for {traj.n_agents} agents '
-          f'(trimmed {lead} leading, {trail} trailing); stale agent-ticks: {int(stale.sum())}')
+    dt_how = 'given' if args.dt else 'from the fix intervals'
+    print(f'clock: {traj.n_steps} ticks of {traj.meta["dt"]:g} s ({dt_how}) for '
+          f'{traj.n_agents} agents (trimmed {lead} leading, {trail} trailing); missing '
+          f'(stale) agent-ticks: {int(stale.sum())} of {stale.size}, stale after '
+          f'{traj.meta["filter_params"].stale_after:g} s')
     print(format_counters(traj.meta['counters']))
     print(f'wrote {args.output} (smoother: {args.smoother})')
     return 0

@@ -45,8 +45,11 @@ def check_runs(runs: list[HerdTrajectory]) -> tuple[list[str], float]:
         if abs(r.dt - dt) > 1e-6 * dt:
             raise HerdInputError(f'run {r.run!r} has step {r.dt:g} s, run {runs[0].run!r} '
                                  f'{dt:g} s: every run needs the same clock step')
-        if not np.isfinite(r.positions).all():
-            raise HerdInputError(f'run {r.run!r} has missing (NaN) positions')
+        present = np.isfinite(r.positions).all(-1)
+        if not present.any(axis=0).all():
+            gone = [a for a, have in zip(r.agents, present.any(axis=0)) if not have]
+            raise HerdInputError(f'run {r.run!r}: agent(s) {", ".join(gone)} have no position '
+                                 f'at all')
     return agents, dt
 
 
@@ -91,13 +94,14 @@ def fit_herd(runs: list[HerdTrajectory], grid: tuple[int, int] = DEFAULT_GRID,
     if sum(max(p.shape[0] - 2, 0) for p in positions) < 1:
         raise HerdInputError('fewer than three time steps: nothing to fit')
     if bounds is None:
-        field_grid = FieldGrid.over(np.concatenate([p.reshape(-1, 2) for p in positions]),
-                                    grid[0], grid[1])
+        pts = np.concatenate([p.reshape(-1, 2) for p in positions])
+        field_grid = FieldGrid.over(pts[np.isfinite(pts).all(-1)], grid[0], grid[1])
     else:
         field_grid = FieldGrid(grid[0], grid[1], tuple(float(b) for b in bounds))
     laws, fits = {}, {}
     for i, a in enumerate(agents):
         visited = np.concatenate([p[:-2, i, :] for p in positions if p.shape[0] >= 3])
+        visited = visited[np.isfinite(visited).all(-1)]
         basis = RbfBasis.from_grid(field_grid, visited, min_visits)
         if basis.size == 0:
             raise HerdInputError(f'agent {a}: no grid cell has {min_visits} samples; lower '

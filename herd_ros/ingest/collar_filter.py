@@ -71,8 +71,9 @@ through the rest; counter ``reinitialised``) when:
 Any fix the track accepts closes the open candidates (the burst is over). Isolated outliers
 in random directions never form a chain.
 
-**Lost tracks** (start of data, a late-starting collar, or no accepted fix for longer than
-``reinit_after_gap``): the old velocity means nothing, and neither does one lone fix, which
+**Lost tracks** (start of data, a late-starting collar, or a collar silent — no fix with a
+position at all — for longer than ``reinit_after_gap``; a long run of *rejected* fixes is a
+burst, handled above, not a silence): the old velocity means nothing, and neither does one lone fix, which
 may be an outlier. The fixes form candidate chains and the first with ``confirm_fixes_lost``
 (default 2) consistent fixes initialises the track; until then the collar has no estimate.
 
@@ -112,6 +113,8 @@ class FilterParams:
 
     Attributes:
         accel_std: std of the white-noise acceleration (m/s²) of the process model.
+        velocity_tau: velocity correlation time (s) of the correlated random walk; 0 =
+            constant velocity (see :func:`process_noise`).
         default_position_std: measurement std (m) for ``COVARIANCE_TYPE_UNKNOWN``.
         position_std_floor: smallest measurement std (m) ever used (floors every R).
         gate_probability: probability mass inside the Mahalanobis gate (χ², 2 dof).
@@ -127,6 +130,7 @@ class FilterParams:
     """
 
     accel_std: float = 0.2
+    velocity_tau: float = 0.0
     default_position_std: float = 5.0
     position_std_floor: float = 0.5
     gate_probability: float = 0.999
@@ -148,6 +152,9 @@ class FilterParams:
             if not (np.isfinite(value) and value > 0):
                 raise HerdInputError(f'filter parameter {name} must be a positive number, '
                                      f'got {value!r}')
+        if not (np.isfinite(self.velocity_tau) and self.velocity_tau >= 0):
+            raise HerdInputError(f'filter parameter velocity_tau must be >= 0 (0 = constant '
+                                 f'velocity), got {self.velocity_tau!r}')
         if not (np.isfinite(self.sprint_s) and self.sprint_s >= 0):
             raise HerdInputError(f'filter parameter sprint_s must be >= 0, got '
                                  f'{self.sprint_s!r}')
@@ -205,22 +212,61 @@ class CollarState:
     P: np.ndarray
 
 
-def transition(tau):
-    """``F(τ)`` for the state [e, n, ve, vn]; ``tau`` any shape -> (..., 4, 4)."""
+def transition(tau, velocity_tau: float = 0.0):
+    """``F(τ)`` for the state [e, n, ve, vn]; ``tau`` any shape -> (..., 4, 4).
+
+    ``velocity_tau`` 0: constant velocity, ``[[I, τI], [0, I]]``. ``velocity_tau`` = 1/β > 0:
+    the integrated Ornstein-Uhlenbeck velocity of the continuous-time correlated random walk
+    (Johnson, London, Lea & Durban 2008, *Ecology* 89:1208, eq. 3):
+    ``[[I, (1 − e^{−βτ})/β I], [0, e^{−βτ} I]]``.
+    """
     tau = np.asarray(tau, dtype=float)
     f = np.broadcast_to(np.eye(4), tau.shape + (4, 4)).copy()
+    if velocity_tau and velocity_tau > 0:
+        beta = 1.0 / float(velocity_tau)
+        reach = -np.expm1(-beta * tau) / beta
+        decay = np.exp(-beta * tau)
+        f[..., 0, 2] = f[..., 1, 3] = reach
+        f[..., 2, 2] = f[..., 3, 3] = decay
+        return f
     f[..., 0, 2] = tau
     f[..., 1, 3] = tau
     return f
 
 
-def process_noise(tau, accel_std):
-    """Discrete white-noise acceleration ``Q(τ)`` (Bar-Shalom et al. 2001, §6.3.3);
-    ``tau`` any shape -> (..., 4, 4), m² / m²s⁻¹ / m²s⁻²."""
+def process_noise(tau, accel_std, velocity_tau: float = 0.0):
+    """``Q(τ)`` of the motion model; ``tau`` any shape -> (..., 4, 4), m² / m²s⁻¹ / m²s⁻².
+
+    ``velocity_tau`` 0: discrete white-noise acceleration (Bar-Shalom et al. 2001, §6.3.3),
+    ``accel_std² [[τ⁴/4, τ³/2], [τ³/2, τ²]] ⊗ I₂``.
+
+    ``velocity_tau`` = 1/β > 0: the continuous-time correlated random walk (Johnson et al.
+    2008, eq. 4), velocity an Ornstein-Uhlenbeck process ``dv = −βv dt + q^½ dW`` with
+    ``q = accel_std²`` (stationary speed std per axis ``accel_std·√(velocity_tau/2)``)::
+
+        Q_vv = q/(2β) (1 − e^{−2βτ})
+        Q_pv = q/(2β²) (1 − e^{−βτ})²
+        Q_pp = q/β² (τ − 2(1 − e^{−βτ})/β + (1 − e^{−2βτ})/(2β))
+
+    Over intervals much longer than ``velocity_tau`` the velocity forgets itself and the
+    position diffuses (variance ≈ q τ/β²): a fix minutes after the last says nothing about
+    a velocity to extrapolate. The constant-velocity model instead reads a displacement d
+    over a long τ as a constant acceleration and ends with a velocity of ~2d/τ, which it
+    then extrapolates (measured on duty-cycled collars: kilometres).
+    """
     tau = np.asarray(tau, dtype=float)
     var = float(accel_std) ** 2
     q = np.zeros(tau.shape + (4, 4))
-    pp, pv, vv = var * tau ** 4 / 4.0, var * tau ** 3 / 2.0, var * tau ** 2
+    if velocity_tau and velocity_tau > 0:
+        beta = 1.0 / float(velocity_tau)
+        a = -np.expm1(-beta * tau)                 # 1 − e^{−βτ}
+        b = -np.expm1(-2.0 * beta * tau)           # 1 − e^{−2βτ}
+        vv = var / (2.0 * beta) * b
+        pv = var / (2.0 * beta ** 2) * a ** 2
+        pp = var / beta ** 2 * (tau - 2.0 * a / beta + b / (2.0 * beta))
+        pp = np.maximum(pp, 0.0)
+    else:
+        pp, pv, vv = var * tau ** 4 / 4.0, var * tau ** 3 / 2.0, var * tau ** 2
     for i in (0, 1):
         q[..., i, i] = pp
         q[..., i, i + 2] = pv
@@ -229,17 +275,19 @@ def process_noise(tau, accel_std):
     return q
 
 
-def predict_state(x, P, tau, accel_std):
-    """Constant-velocity prediction ``x⁻ = F x``, ``P⁻ = F P Fᵀ + Q`` over ``tau`` seconds.
+def predict_state(x, P, tau, accel_std, velocity_tau: float = 0.0):
+    """Prediction ``x⁻ = F x``, ``P⁻ = F P Fᵀ + Q`` over ``tau`` seconds (the motion model
+    of :func:`transition` / :func:`process_noise`).
 
     Vectorized: ``x`` (..., 4), ``P`` (..., 4, 4), ``tau`` (...) broadcast together; the
     herd clock uses it to carry filter states to the ticks.
     """
-    f = transition(tau)
+    f = transition(tau, velocity_tau)
     x = np.asarray(x, dtype=float)
     P = np.asarray(P, dtype=float)
     xp = np.einsum('...ij,...j->...i', f, x)
-    Pp = np.einsum('...ij,...jk,...lk->...il', f, P, f) + process_noise(tau, accel_std)
+    Pp = (np.einsum('...ij,...jk,...lk->...il', f, P, f)
+          + process_noise(tau, accel_std, velocity_tau))
     return xp, Pp
 
 
@@ -309,6 +357,7 @@ class CollarFilter:
         self.last_report = float('nan')
         self.candidates: list[_Candidate] = []
         self._ever_initialised = False
+        self._last_position_fix = -np.inf     # stamp of the last fix with a position
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -333,7 +382,8 @@ class CollarFilter:
         """The state predicted to data time ``t`` (≥ ``self.t``); NaN before initialisation."""
         if not self.initialised:
             return CollarState(float(t), np.full(4, np.nan), np.full((4, 4), np.nan))
-        x, P = predict_state(self.x, self.P, float(t) - self.t, self.params.accel_std)
+        x, P = predict_state(self.x, self.P, float(t) - self.t, self.params.accel_std,
+                             self.params.velocity_tau)
         return CollarState(float(t), x, P)
 
     def is_stale(self, t: float) -> bool:
@@ -364,7 +414,9 @@ class CollarFilter:
         z = np.array([float(east), float(north)])
         r = measurement_covariance(position_covariance, position_covariance_type,
                                    p.default_position_std, p.position_std_floor)
-        if self.initialised and stamp - self.t > p.reinit_after_gap:
+        silence = stamp - self._last_position_fix
+        self._last_position_fix = stamp
+        if self.initialised and silence > p.reinit_after_gap:
             self._lose_track()
         if not self.initialised:
             return self._lost_fix(stamp, z, r)
@@ -386,8 +438,8 @@ class CollarFilter:
                                            'continues a chain of fixes beyond reach',
                                            chain=cand)
         # Mahalanobis gate on the innovation
-        F = transition(tau)
-        Q = process_noise(tau, p.accel_std)
+        F = transition(tau, p.velocity_tau)
+        Q = process_noise(tau, p.accel_std, p.velocity_tau)
         x_pred = F @ self.x
         P_pred = F @ self.P @ F.T + Q
         y = z - x_pred[:2]
@@ -478,7 +530,9 @@ class CollarFilter:
         self._initialise(*fixes[0])
         for t_k, z_k, r_k in fixes[1:]:
             tau = t_k - self.t
-            self.kf.predict(F=transition(tau), Q=process_noise(tau, self.params.accel_std))
+            self.kf.predict(F=transition(tau, self.params.velocity_tau),
+                            Q=process_noise(tau, self.params.accel_std,
+                                            self.params.velocity_tau))
             self.kf.update(z_k, R=r_k)
             self.t = t_k
         self.candidates.clear()

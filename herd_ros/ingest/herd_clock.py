@@ -67,6 +67,7 @@ class StateTimeline:
         stale_after: the filter's staleness horizon (s).
         segment: (K,) int, which (re)initialisation each state descends from; consecutive
             states of one segment are one Kalman predict/update apart (what RTS needs).
+        velocity_tau: the filter's velocity correlation time (s; 0 = constant velocity).
     """
 
     t: np.ndarray
@@ -75,6 +76,7 @@ class StateTimeline:
     accel_std: float
     stale_after: float
     segment: np.ndarray | None = None
+    velocity_tau: float = 0.0
 
     def __post_init__(self):
         if self.segment is None:
@@ -93,7 +95,8 @@ class StateTimeline:
             return (np.full((n, 4), np.nan), np.full((n, 4, 4), np.nan),
                     np.ones(n, bool), np.zeros(n, bool))
         tau = ticks - self.t[safe]
-        x, P = predict_state(self.x[safe], self.P[safe], tau, self.accel_std)
+        x, P = predict_state(self.x[safe], self.P[safe], tau, self.accel_std,
+                             self.velocity_tau)
         x[~initialised] = np.nan
         P[~initialised] = np.nan
         stale = ~initialised | (tau > self.stale_after)
@@ -130,7 +133,7 @@ class TimelineRecorder:
                              np.asarray(self.x, dtype=float).reshape(-1, 4),
                              np.asarray(self.P, dtype=float).reshape(-1, 4, 4),
                              p.accel_std, p.stale_after,
-                             np.asarray(self.segment, dtype=int))
+                             np.asarray(self.segment, dtype=int), p.velocity_tau)
 
 
 def resample_timelines(timelines: dict[str, StateTimeline], ticks, agents=None
@@ -289,7 +292,8 @@ class HerdClock:
             if rec.start < len(r.t) and r.t[rec.start] <= tick:
                 p = r.filter.params
                 tau = tick - r.t[rec.start]
-                x[i], P[i] = predict_state(r.x[rec.start], r.P[rec.start], tau, p.accel_std)
+                x[i], P[i] = predict_state(r.x[rec.start], r.P[rec.start], tau, p.accel_std,
+                                           p.velocity_tau)
                 init[i] = True
                 stale[i] = tau > p.stale_after
                 if stale[i]:

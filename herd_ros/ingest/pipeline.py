@@ -117,11 +117,21 @@ def auto_dt(fixes: pd.DataFrame) -> float:
     return next((s for s in NICE_STEPS if s >= 0.999 * med), NICE_STEPS[-1])
 
 
+#: Motion model of the offline path and the node unless told otherwise: a correlated random
+#: walk whose velocity forgets itself in two minutes (stationary speed std 0.39 m/s per
+#: axis), right for walking and grazing animals fixed every second to every few minutes.
+DEFAULT_ACCEL_STD = 0.05
+DEFAULT_VELOCITY_TAU = 120.0
+
+
 def auto_filter_params(fixes: pd.DataFrame, **given) -> dict:
-    """Data-derived defaults for the filter parameters not in ``given`` (None = derive):
+    """Defaults for the filter parameters not in ``given`` (None = default): the motion
+    model (:data:`DEFAULT_ACCEL_STD`, :data:`DEFAULT_VELOCITY_TAU`) and, from the data,
     ``stale_after`` (:func:`auto_stale_after`) and ``reinit_after_gap`` (at least
     ``stale_after``, at least 300 s)."""
     out = {k: v for k, v in given.items() if v is not None}
+    out.setdefault('accel_std', DEFAULT_ACCEL_STD)
+    out.setdefault('velocity_tau', DEFAULT_VELOCITY_TAU)
     out.setdefault('stale_after', auto_stale_after(fixes))
     out.setdefault('reinit_after_gap', max(300.0, float(out['stale_after'])))
     return out

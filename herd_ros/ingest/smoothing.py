@@ -78,8 +78,8 @@ def rts_timeline(timeline: StateTimeline) -> tuple[np.ndarray, np.ndarray]:
         if len(idx) < 2:
             continue
         tau = np.concatenate([[0.0], np.diff(timeline.t[idx])])
-        Fs = transition(tau)
-        Qs = process_noise(tau, timeline.accel_std)
+        Fs = transition(tau, timeline.velocity_tau)
+        Qs = process_noise(tau, timeline.accel_std, timeline.velocity_tau)
         x_s, P_s, _, _ = kf.rts_smoother(timeline.x[idx], timeline.P[idx], Fs, Qs)
         xs[idx], Ps[idx] = x_s, P_s
     return xs, Ps
@@ -101,20 +101,27 @@ def rts_on_ticks(timeline: StateTimeline, ticks):
     k = np.where(have, k, 0)
     tau1 = ticks - timeline.t[k]
     # the filtered prediction from fix k to the tick (and the plain answer after a segment)
-    xf, Pf = predict_state(timeline.x[k], timeline.P[k], tau1, timeline.accel_std)
-    xsp, Psp = predict_state(xs[k], Ps[k], tau1, timeline.accel_std)
+    vt = timeline.velocity_tau
+    xf, Pf = predict_state(timeline.x[k], timeline.P[k], tau1, timeline.accel_std, vt)
+    xsp, Psp = predict_state(xs[k], Ps[k], tau1, timeline.accel_std, vt)
     nxt = np.minimum(k + 1, K - 1)
     inside = have & (k + 1 < K) & (timeline.segment[nxt] == timeline.segment[k])
     x_out[have], P_out[have] = xsp[have], Psp[have]
     if inside.any():
         ki, kn, t1 = k[inside], nxt[inside], tau1[inside]
         delta = timeline.t[kn] - timeline.t[ki]
-        f1, f2 = transition(t1), transition(delta)
+        f1, f2 = transition(t1, vt), transition(delta, vt)
         Pk = timeline.P[ki]
-        c = np.einsum('...ij,...jk,...lk->...il', f1, Pk, f2) + _gain_matrix(
-            (t1, delta), timeline.accel_std)
+        if vt > 0:
+            # a Markov (continuous) model: x(δ) = F(δ − t1) x(t1) + independent noise, so the
+            # noise to t1 and to δ covary as Q(t1) F(δ − t1)ᵀ
+            cross = np.einsum('...ij,...kj->...ik', process_noise(t1, timeline.accel_std, vt),
+                              transition(delta - t1, vt))
+        else:
+            cross = _gain_matrix((t1, delta), timeline.accel_std)
+        c = np.einsum('...ij,...jk,...lk->...il', f1, Pk, f2) + cross
         x_next_prior, P_next_prior = predict_state(timeline.x[ki], Pk, delta,
-                                                   timeline.accel_std)
+                                                   timeline.accel_std, vt)
         gain = np.linalg.solve(P_next_prior, np.swapaxes(c, -1, -2))
         gain = np.swapaxes(gain, -1, -2)                   # J = C P⁻⁻¹ (P⁻ symmetric)
         dx = xs[kn] - x_next_prior

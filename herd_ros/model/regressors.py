@@ -68,10 +68,14 @@ def interaction_columns(positions: np.ndarray, i: int, times=None, agents=None):
         e (M, N−1, 2), e/d (M, N−1, 2), in the order of the other agents.
     Raises:
         HerdInputError if two agents coincide (d = 0: f_ij is undefined).
+
+    A neighbour missing at a step (NaN position) drops out: its columns are zero there.
     """
     p = np.asarray(positions, dtype=float)
     others = [j for j in range(p.shape[1]) if j != i]
     off = p[:, others, :] - p[:, i:i + 1, :]
+    missing = ~np.isfinite(off).all(-1)
+    off[missing] = np.nan
     d = np.sqrt((off ** 2).sum(-1))
     if (d <= 0).any():
         tau, k = np.argwhere(d <= 0)[0]
@@ -81,7 +85,11 @@ def interaction_columns(positions: np.ndarray, i: int, times=None, agents=None):
         raise HerdInputError(f'{who} are at the same position at {when}: the interaction '
                              f'f_ij needs a non-zero distance (check for duplicated collars)')
     e = off / d[..., None]
-    return e, e / d[..., None]
+    e_over_d = e / d[..., None]
+    # a missing neighbour drops out of the interaction sum
+    e[missing] = 0.0
+    e_over_d[missing] = 0.0
+    return e, e_over_d
 
 
 def agent_regression(runs, i: int, basis: RbfBasis, dt: float, agents: list[str],
@@ -95,12 +103,18 @@ def agent_regression(runs, i: int, basis: RbfBasis, dt: float, agents: list[str]
         u = velocities(p, dt)
         pt = p[:-2]  # p^τ for τ = 0..T-3
         times = run_times[r][:-2] if run_times is not None else None
-        e, e_over_d = interaction_columns(pt, i, times, agents)
-        ax.append(np.column_stack([u[:-1, i, 0], e[..., 0], -e_over_d[..., 0]]))
-        ay.append(np.column_stack([u[:-1, i, 1], e[..., 1], -e_over_d[..., 1]]))
-        fs.append(basis.features(pt[:, i, :]))
-        yx.append(u[1:, i, 0])
-        yy.append(u[1:, i, 1])
+        # a sample needs agent i at τ, τ+1 and τ+2 (missing steps are skipped)
+        ok = np.isfinite(p[:-2, i]).all(-1) & np.isfinite(p[1:-1, i]).all(-1) \
+            & np.isfinite(p[2:, i]).all(-1)
+        if not ok.any():
+            continue
+        e, e_over_d = interaction_columns(pt[ok], i, None if times is None else times[ok],
+                                          agents)
+        ax.append(np.column_stack([u[:-1][ok, i, 0], e[..., 0], -e_over_d[..., 0]]))
+        ay.append(np.column_stack([u[:-1][ok, i, 1], e[..., 1], -e_over_d[..., 1]]))
+        fs.append(basis.features(pt[ok, i, :]))
+        yx.append(u[1:][ok, i, 0])
+        yy.append(u[1:][ok, i, 1])
     if not ax:
         raise HerdInputError('no run has the three steps one regression sample needs')
     neighbors = [agents[j] for j in range(len(agents)) if j != i]

@@ -23,6 +23,24 @@ consumer-grade GNSS collars):
   the truth, NaN altitude and unknown covariance — they must be rejected by status alone.
 * **NaN altitude**: 1 % of the valid fixes have no vertical solution (allowed by NavSatFix).
 
+Real-collar faults (off by default; :meth:`CollarErrorModel.real_collar` turns them all on
+with the figures seen on deployed cattle and wildlife collars):
+
+* **Duty cycle** (``fix_interval_range``): each interval drawn uniformly in a range (e.g.
+  30-250 s) instead of a fixed rate — collars that save battery, or schedule fixes by
+  activity.
+* **Silences** (``silence_rate``, ``silence_duration``): hours to days without a fix (the
+  collar lost its sky view under a tree line, its battery sagged overnight, or its
+  store-and-forward radio failed), then it comes back.
+* **Late start / early end** (``late_start_fraction``, ``early_end_fraction``): collars put on
+  after the others, or that die before the end of the deployment.
+* **Outlier bursts** (``burst_rate``, ``burst_fixes``, ``burst_offset``): runs of 3-10
+  consecutive fixes hundreds of metres to kilometres off, clustered about one wrong place
+  (``burst_scatter`` of the offset) — bad satellite geometry or a cold start computing
+  a wrong solution for a while; the reported covariance does not show them (flag ``burst``).
+* **Duplicated stamps** (``duplicate_probability``): a fix delivered twice with the same
+  stamp (store-and-forward retransmission; flag ``duplicate``).
+
 The returned table follows the fixes table of :mod:`herd_ros.io.gps_files` (so
 ``herd_ros.io.bags.write_fix_bag`` and the ingest pipeline take it as is), plus truth and
 diagnostic columns:
@@ -39,6 +57,8 @@ diagnostic columns:
 ``cov_uu``                  reported vertical variance (m²); NaN on NO_FIX rows
 ``true_x, true_y``          the true ENU position at ``time`` (m), for evaluation only
 ``multipath``               True if the fix carries a multipath jump
+``burst``                   True if the fix belongs to an outlier burst
+``duplicate``               True for the second copy of a duplicated fix
 =========================== ======================================================
 
 Rows are sorted by time (then agent order). Deterministic for a seed.
@@ -87,6 +107,32 @@ class CollarErrorModel:
     no_fix_probability: float = 0.003     # fixes delivered with status NO_FIX
     no_fix_offset: tuple = (50.0, 300.0)  # m, how wrong a NO_FIX position is
     nan_alt_probability: float = 0.01     # valid fixes without altitude
+    # --- real-collar faults (off by default) -----------------------------------------------
+    fix_interval_range: tuple | None = None   # s, duty-cycled intervals U(lo, hi)
+    silence_rate: float = 0.0             # 1/s, rate at which silences start
+    silence_duration: tuple = (6 * 3600.0, 30 * 3600.0)  # s
+    late_start_fraction: float = 0.0      # share of collars that start late
+    late_start: tuple = (3600.0, 12 * 3600.0)  # s after the start of the trajectory
+    early_end_fraction: float = 0.0       # share of collars that end early
+    early_end: tuple = (3600.0, 12 * 3600.0)   # s before the end of the trajectory
+    burst_rate: float = 0.0               # probability per fix that a burst starts
+    burst_fixes: tuple = (3, 10)          # fixes per burst
+    burst_offset: tuple = (300.0, 3000.0)  # m, distance of the wrong place
+    burst_scatter: float = 0.1            # std of the burst fixes about it, × the offset
+    duplicate_probability: float = 0.0    # fixes delivered twice with the same stamp
+
+    @classmethod
+    def real_collar(cls, **overrides) -> 'CollarErrorModel':
+        """Every real-collar fault on, as seen on deployed GPS collars: fixes every 30-250 s,
+        silences of 6-30 h (about one per 3 days), a third of the collars starting late and
+        a third ending early, bursts of 3-10 fixes 0.3-3 km off (one per ~300 fixes),
+        0.5 % duplicated stamps."""
+        base = dict(fix_interval=140.0, fix_interval_range=(30.0, 250.0),
+                    silence_rate=1.0 / (3 * 86400.0), late_start_fraction=1 / 3,
+                    early_end_fraction=1 / 3, burst_rate=1.0 / 300.0,
+                    duplicate_probability=0.005, outage_rate=0.0, skip_probability=0.0)
+        base.update(overrides)
+        return cls(**base)
 
     def __post_init__(self):
         positive = ('fix_interval', 'gm_tau', 'hdop_tau')
@@ -101,6 +147,16 @@ class CollarErrorModel:
                                      f'got {getattr(self, name)!r}')
         if int(self.multipath_max_fixes) < 1:
             raise HerdInputError('collar error model: multipath_max_fixes must be >= 1')
+        for name in ('burst_rate', 'duplicate_probability', 'late_start_fraction',
+                     'early_end_fraction'):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise HerdInputError(f'collar error model: {name} must be in [0, 1], '
+                                     f'got {getattr(self, name)!r}')
+        if self.fix_interval_range is not None:
+            lo, hi = self.fix_interval_range
+            if not 0 < lo <= hi:
+                raise HerdInputError('collar error model: fix_interval_range must be '
+                                     f'0 < lo <= hi, got {self.fix_interval_range!r}')
 
     @property
     def horizontal_std(self) -> float:
@@ -144,23 +200,36 @@ def simulate_collar_fixes(traj: HerdTrajectory, *, seed: int = 0, datum=None,
         raise HerdInputError('collar errors: the trajectory has non-finite times or positions')
     if (np.diff(times) <= 0).any():
         raise HerdInputError('collar errors: the trajectory times must increase strictly')
-    interval = float(model.fix_interval)
-    n_fixes = int(np.floor((times[-1] - times[0]) / interval))
-    if n_fixes < 1:
-        raise HerdInputError(f'collar errors: the trajectory spans {times[-1] - times[0]:g} s, '
-                             f'less than one fix interval ({interval:g} s)')
+    span = float(times[-1] - times[0])
     n_agents = pos.shape[1]
     rng = np.random.default_rng(seed)
+    if model.fix_interval_range is None:
+        interval = float(model.fix_interval)
+        n_fixes = int(np.floor(span / interval))
+    else:
+        lo, hi = (float(v) for v in model.fix_interval_range)
+        interval = 0.5 * (lo + hi)
+        n_fixes = int(np.floor(span / lo)) + 1
+    if n_fixes < 1:
+        raise HerdInputError(f'collar errors: the trajectory spans {span:g} s, '
+                             f'less than one fix interval ({interval:g} s)')
     shape = (n_fixes, n_agents)
 
-    # --- when each collar fixes: own phase, jitter, ms stamps ------------------------------
+    # --- when each collar fixes: own phase, jitter (or duty-cycled intervals), ms stamps ---
     phase = rng.uniform(0.0, interval, n_agents)
-    jitter = np.clip(rng.normal(0.0, model.timing_jitter_std, shape), -0.3 * interval,
-                     0.3 * interval)
-    t_fix = times[0] + phase[None, :] + interval * np.arange(n_fixes)[:, None] + jitter
+    if model.fix_interval_range is None:
+        jitter = np.clip(rng.normal(0.0, model.timing_jitter_std, shape), -0.3 * interval,
+                         0.3 * interval)
+        t_fix = times[0] + phase[None, :] + interval * np.arange(n_fixes)[:, None] + jitter
+    else:
+        steps = rng.uniform(lo, hi, shape)
+        steps[0] = phase
+        t_fix = times[0] + np.cumsum(steps, axis=0)
+    # duty-cycled collars stop at the end of the data; fixed-rate ones keep the old clipping
+    beyond = (t_fix > times[-1]) if model.fix_interval_range is not None else \
+        np.zeros(shape, dtype=bool)
     t_fix = np.round(np.clip(t_fix, times[0], times[-1]), 3)
     true_xy = _interpolate(times, pos, t_fix)                            # (K, N, 2)
-
     # --- correlated + white noise, scaled by an HDOP-like factor ---------------------------
     hdop = np.exp(_gauss_markov(rng, shape, model.hdop_log_std, model.hdop_tau, interval))
     gm_h = _gauss_markov(rng, shape + (2,), model.horizontal_gm_std, model.gm_tau, interval)
@@ -196,7 +265,33 @@ def simulate_collar_fixes(traj: HerdTrajectory, *, seed: int = 0, datum=None,
     np.add.at(edges, (outage_starts[:, 0], outage_starts[:, 1]), 1)
     np.add.at(edges, (outage_starts[:, 0] + outage_len, outage_starts[:, 1]), -1)
     in_outage = np.cumsum(edges, axis=0)[:n_fixes] > 0
-    delivered = ~in_outage & (rng.random(shape) >= model.skip_probability)
+    delivered = ~in_outage & (rng.random(shape) >= model.skip_probability) & ~beyond
+
+    # --- real-collar faults: silences, late start, early end, outlier bursts ----------------
+    # (their own random stream: the fixed-rate model's draws stay what they were)
+    frng = np.random.default_rng([seed, 1])
+    for i in range(n_agents):
+        n_sil = frng.poisson(model.silence_rate * span)
+        for start, length in zip(frng.uniform(times[0], times[-1], n_sil),
+                                 frng.uniform(*model.silence_duration, n_sil)):
+            delivered[:, i] &= ~((t_fix[:, i] >= start) & (t_fix[:, i] < start + length))
+    for frac, rng_s, late in ((model.late_start_fraction, model.late_start, True),
+                              (model.early_end_fraction, model.early_end, False)):
+        for i in np.flatnonzero(frng.random(n_agents) < frac):
+            cut = min(frng.uniform(*rng_s), 0.4 * span)
+            delivered[:, i] &= (t_fix[:, i] >= times[0] + cut) if late else \
+                (t_fix[:, i] <= times[-1] - cut)
+    burst = np.zeros(shape, dtype=bool)
+    offset_burst = np.zeros(shape + (2,))
+    for k0, i in np.argwhere(frng.random(shape) < model.burst_rate):
+        length = int(frng.integers(int(model.burst_fixes[0]), int(model.burst_fixes[1]) + 1))
+        size = frng.uniform(*model.burst_offset)
+        ang = frng.uniform(-np.pi, np.pi)
+        rows = np.arange(k0, min(k0 + length, n_fixes))
+        centre = size * np.array([np.cos(ang), np.sin(ang)])
+        offset_burst[rows, i] = centre + model.burst_scatter * size / np.sqrt(2.0) \
+            * frng.standard_normal((len(rows), 2))
+        burst[rows, i] = True
 
     # --- NO_FIX and NaN altitude ------------------------------------------------------------
     no_fix = rng.random(shape) < model.no_fix_probability
@@ -204,7 +299,7 @@ def simulate_collar_fixes(traj: HerdTrajectory, *, seed: int = 0, datum=None,
     bad_angle = rng.uniform(-np.pi, np.pi, shape)
     nan_alt = rng.random(shape) < model.nan_alt_probability
 
-    meas_xy = true_xy + err_xy + offset_xy
+    meas_xy = true_xy + err_xy + offset_xy + offset_burst
     bad_xy = bad_size[..., None] * np.stack([np.cos(bad_angle), np.sin(bad_angle)], axis=-1)
     meas_xy[no_fix] = true_xy[no_fix] + bad_xy[no_fix]
     meas_u = err_u + offset_u
@@ -236,8 +331,15 @@ def simulate_collar_fixes(traj: HerdTrajectory, *, seed: int = 0, datum=None,
         'true_x': true_xy[..., 0][keep],
         'true_y': true_xy[..., 1][keep],
         'multipath': multipath[keep] & ~nf,
+        'burst': burst[keep] & ~nf,
+        'duplicate': False,
     })
-    order = np.lexsort((agent_idx, table['time'].to_numpy()))
+    dup = table[frng.random(len(table)) < model.duplicate_probability].copy()
+    dup['duplicate'] = True
+    agent_pos = {a: k for k, a in enumerate(traj.agents)}
+    table = pd.concat([table, dup], ignore_index=True)
+    order = np.lexsort((table['duplicate'].to_numpy(),
+                        table['agent'].map(agent_pos).to_numpy(), table['time'].to_numpy()))
     table = table.iloc[order].reset_index(drop=True)
     table.attrs['datum'] = (lat0, lon0, alt0)
     return table
