@@ -65,8 +65,10 @@ through the rest; counter ``reinitialised``) when:
   fixes (default 12, longer than an outlier burst), so a track that really is wrong (say it
   started on an outlier) is still left in the end. While such a chain is open, a fix
   consistent with it belongs to it even if the track's envelope, grown with the time since
-  its last accepted fix, would now admit it: a burst cannot make itself plausible by
-  lasting.
+  its last accepted fix, would now admit it, as long as it is nearer to the chain's last
+  fix than to the track's prediction (nearest-neighbour association, Bar-Shalom & Fortmann
+  1988): a burst cannot make itself plausible by
+  lasting (the same holds for a reachable chain).
 
 Any fix the track accepts closes the open candidates (the burst is over). Isolated outliers
 in random directions never form a chain.
@@ -135,7 +137,7 @@ class FilterParams:
     position_std_floor: float = 0.5
     gate_probability: float = 0.999
     max_speed: float = 3.0
-    cruise_speed: float = 1.5
+    cruise_speed: float = 1.0
     sprint_s: float = 60.0
     stale_after: float = 30.0
     initial_velocity_std: float | None = None
@@ -223,6 +225,7 @@ def transition(tau, velocity_tau: float = 0.0):
     tau = np.asarray(tau, dtype=float)
     f = np.broadcast_to(np.eye(4), tau.shape + (4, 4)).copy()
     if velocity_tau and velocity_tau > 0:
+        tau = np.maximum(tau, 0.0)
         beta = 1.0 / float(velocity_tau)
         reach = -np.expm1(-beta * tau) / beta
         decay = np.exp(-beta * tau)
@@ -258,6 +261,7 @@ def process_noise(tau, accel_std, velocity_tau: float = 0.0):
     var = float(accel_std) ** 2
     q = np.zeros(tau.shape + (4, 4))
     if velocity_tau and velocity_tau > 0:
+        tau = np.maximum(tau, 0.0)
         beta = 1.0 / float(velocity_tau)
         a = -np.expm1(-beta * tau)                 # 1 − e^{−βτ}
         b = -np.expm1(-2.0 * beta * tau)           # 1 − e^{−2βτ}
@@ -406,8 +410,8 @@ class CollarFilter:
         if not np.isfinite(stamp):
             return self._reject('time', 'stamp is not finite')
         latest = self.t if self.initialised else -np.inf
-        if self.candidates:
-            latest = max(latest, self.candidates[-1].fixes[-1][0])
+        for cand in self.candidates:
+            latest = max(latest, cand.fixes[-1][0])
         if stamp <= latest:
             return self._reject('time', f'stamp {stamp:.3f} is not after the last fix '
                                         f'{latest:.3f} (time going backwards or a duplicate)')
@@ -430,21 +434,22 @@ class CollarFilter:
             return self._candidate_fix(stamp, z, r, 'speed', True,
                                        f'{dist:.1f} m in {tau:.3g} s is beyond reach '
                                        f'(allowed {allowed:.1f} m)')
-        # a fix continuing an open jump chain belongs to it (a burst cannot make itself
-        # plausible by lasting long enough for the envelope to grow)
-        for cand in self.candidates:
-            if cand.jump and self._consistent(cand, stamp, z, r):
-                return self._candidate_fix(stamp, z, r, 'speed', True,
-                                           'continues a chain of fixes beyond reach',
-                                           chain=cand)
-        # Mahalanobis gate on the innovation
+        # Mahalanobis distance of the innovation
         F = transition(tau, p.velocity_tau)
         Q = process_noise(tau, p.accel_std, p.velocity_tau)
         x_pred = F @ self.x
         P_pred = F @ self.P @ F.T + Q
         y = z - x_pred[:2]
-        s = P_pred[:2, :2] + r
-        d2 = float(y @ np.linalg.solve(s, y))
+        d2 = float(y @ np.linalg.solve(P_pred[:2, :2] + r, y))
+        # a fix that continues an open chain better than it fits the track belongs to the
+        # chain: a burst cannot make itself plausible by lasting long enough for the
+        # track's envelope and gate to grow
+        for cand in reversed(self.candidates):
+            if (self._consistent(cand, stamp, z, r)
+                    and np.hypot(*(z - cand.fixes[-1][1])) < np.hypot(*y)):
+                return self._candidate_fix(stamp, z, r, 'speed' if cand.jump else 'gate',
+                                           cand.jump, 'continues a chain of rejected fixes',
+                                           d2=d2, chain=cand)
         if d2 > self._gate:
             return self._candidate_fix(stamp, z, r, 'gate', False,
                                        f'Mahalanobis distance² {d2:.1f} exceeds the '
@@ -474,13 +479,20 @@ class CollarFilter:
         self.counters[f'rejected_{reason}'] += 1
         return FixResult(False, reason, detail, d2)
 
-    def _consistent(self, cand: _Candidate, stamp, z, r) -> bool:
-        """The fix continues ``cand``: within reach of its last fix."""
+    def _reach_ratio(self, cand: _Candidate, stamp, z, r) -> float:
+        """Distance of the fix from the chain's last fix over the reach allowed in the time
+        between them (≤ 1: the fix continues the chain; inf if not after it)."""
         t_prev, z_prev, r_prev = cand.fixes[-1]
         tau = stamp - t_prev
+        if not tau > 0:
+            return float('inf')
         sigma = float(np.sqrt(np.linalg.eigvalsh(r + r_prev)[-1]))
-        return bool(tau > 0 and float(np.hypot(*(z - z_prev)))
-                    <= float(self.params.reach(tau)) + self._gate_sigma * sigma)
+        allowed = float(self.params.reach(tau)) + self._gate_sigma * sigma
+        return float(np.hypot(*(z - z_prev))) / allowed
+
+    def _consistent(self, cand: _Candidate, stamp, z, r) -> bool:
+        """The fix continues ``cand``: within reach of its last fix."""
+        return self._reach_ratio(cand, stamp, z, r) <= 1.0
 
     def _attach(self, stamp, z, r, jump: bool, chain=None) -> _Candidate:
         """Append the fix to ``chain``, to the newest consistent candidate, or to a new one."""

@@ -107,14 +107,15 @@ NICE_STEPS = (1.0, 2.0, 5.0, 10.0, 15.0, 20.0, 30.0, 60.0, 120.0, 300.0, 600.0, 
 
 
 def auto_dt(fixes: pd.DataFrame) -> float:
-    """Default herd clock step: the median fix interval, rounded up to a round step
-    (:data:`NICE_STEPS`), so that most ticks have a fresh fix of most collars behind them."""
+    """Default herd clock step: the median fix interval, rounded to the nearest round step
+    (:data:`NICE_STEPS`, nearest on a log scale): one tick per fix of a typical collar."""
     steps = fix_intervals(fixes)
     if not len(steps):
         raise HerdInputError('cannot choose the herd clock step: no collar has two fixes '
                              'at different times; give --dt')
     med = float(np.median(steps))
-    return next((s for s in NICE_STEPS if s >= 0.999 * med), NICE_STEPS[-1])
+    nice = np.asarray(NICE_STEPS)
+    return float(nice[np.argmin(np.abs(np.log(nice / med)))])
 
 
 #: Motion model of the offline path and the node unless told otherwise: a correlated random

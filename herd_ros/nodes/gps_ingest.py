@@ -11,9 +11,10 @@ parameter. Publishes
   since a collar measures no heading), both with their covariance from the filter. Unobserved
   entries (z, roll, pitch, yaw and their rates) carry the variance :data:`UNOBSERVED_VARIANCE`.
 * ``/herd/poses`` (geometry_msgs/PoseArray, ``agents`` order) for every tick of the herd
-  clock, stamped with the tick: a stale agent carries the filter's prediction; an agent that
-  has never had an accepted fix gets a **NaN** position (x = y = z = NaN, identity
-  orientation), so consumers must check ``isfinite``.
+  clock, stamped with the tick: an agent with an accepted fix within ``stale_after`` s of
+  data time carries the filter's prediction to the tick; a stale agent (silent longer, or
+  never initialised) gets a **NaN** position (x = y = z = NaN, identity orientation) —
+  missing, never an extrapolation — so consumers must check ``isfinite``.
 * ``/diagnostics`` every ``diagnostics_period`` s of wall time (the only wall-time timer):
   one status per collar (counters per outcome, stale flag, last rejection) — WARN if a fix
   was rejected since the last report or the collar is stale, OK otherwise — and one for the
@@ -81,11 +82,16 @@ DEFAULTS = {
     'default_position_std': 5.0,
     'position_std_floor': 0.5,
     'accel_std': 0.05,
+    'velocity_tau': 120.0,
     'gate_probability': 0.999,
     'max_speed': 3.0,
+    'cruise_speed': 1.0,
+    'sprint_s': 60.0,
     'stale_after': 30.0,
     'initial_velocity_std': 0.0,          # 0 = max_speed
-    'reinit_after_rejections': 5,
+    'confirm_fixes': 3,
+    'reacquire_fixes': 12,
+    'confirm_fixes_lost': 2,
     'reinit_after_gap': 300.0,
     'frame_id': 'map',
     'diagnostics_period': 1.0,
@@ -96,9 +102,10 @@ DEFAULTS = {
 }
 
 #: The node parameters that are :class:`FilterParams` fields (same names).
-FILTER_FIELDS = ('accel_std', 'default_position_std', 'position_std_floor',
-                 'gate_probability', 'max_speed', 'stale_after', 'initial_velocity_std',
-                 'reinit_after_rejections', 'reinit_after_gap')
+FILTER_FIELDS = ('accel_std', 'velocity_tau', 'default_position_std', 'position_std_floor',
+                 'gate_probability', 'max_speed', 'cruise_speed', 'sprint_s', 'stale_after',
+                 'initial_velocity_std', 'confirm_fixes', 'reacquire_fixes',
+                 'confirm_fixes_lost', 'reinit_after_gap')
 
 
 
@@ -135,7 +142,8 @@ class GpsIngestConfig:
                                      f'{p[name]!r}')
             setattr(self, name, value)
         filt = {name: _number(p, name) for name in FILTER_FIELDS}
-        filt['reinit_after_rejections'] = int(filt['reinit_after_rejections'])
+        for name in ('confirm_fixes', 'reacquire_fixes', 'confirm_fixes_lost'):
+            filt[name] = int(filt[name])
         if filt['initial_velocity_std'] == 0.0:
             filt['initial_velocity_std'] = None
         try:
@@ -347,7 +355,9 @@ class GpsIngest(Node):
                 level, message = WARN, f'rejected {self.last_rejection[agent]}'
             elif stale:
                 level, message = WARN, ('stale: no accepted fix yet' if not collar.initialised
-                                        else 'stale: carrying the prediction')
+                                        else f'stale: silent for more than '
+                                        f'{self.cfg.filter_params.stale_after:g} s, missing '
+                                        f'(NaN) in /herd/poses')
             else:
                 level, message = OK, 'ok'
             values = dict(counters)

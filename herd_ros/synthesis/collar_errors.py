@@ -277,7 +277,8 @@ def simulate_collar_fixes(traj: HerdTrajectory, *, seed: int = 0, datum=None,
             delivered[:, i] &= ~((t_fix[:, i] >= start) & (t_fix[:, i] < start + length))
     for frac, rng_s, late in ((model.late_start_fraction, model.late_start, True),
                               (model.early_end_fraction, model.early_end, False)):
-        for i in np.flatnonzero(frng.random(n_agents) < frac):
+        k = int(np.ceil(frac * n_agents - 1e-9))            # that share of the collars
+        for i in frng.permutation(n_agents)[:k]:
             cut = min(frng.uniform(*rng_s), 0.4 * span)
             delivered[:, i] &= (t_fix[:, i] >= times[0] + cut) if late else \
                 (t_fix[:, i] <= times[-1] - cut)
