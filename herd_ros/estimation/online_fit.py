@@ -95,6 +95,10 @@ class PairwiseRegressor:
         with np.errstate(invalid='ignore', divide='ignore'):
             e = off[self._offdiag].reshape(n, n - 1, 2) / dd[..., None]
             e_over_d = e / dd[..., None]
+        # a missing neighbour drops out of the interaction sum (zero columns)
+        gone = ~np.isfinite(dd)
+        e[gone] = 0.0
+        e_over_d[gone] = 0.0
         H = np.zeros((n, 2, self.n_params))
         H[:, :, 0] = u
         H[:, :, 1:n] = np.swapaxes(e, 1, 2)
@@ -102,12 +106,13 @@ class PairwiseRegressor:
         phi = self.basis.features(np.nan_to_num(p0))
         H[:, 0, 2 * n - 1:2 * n - 1 + K] = phi
         H[:, 1, 2 * n - 1 + K:] = phi
-        valid = (np.isfinite(p0).all() & np.isfinite(u).all(axis=1) & (dd > 0).all(axis=1))
+        valid = (np.isfinite(p0).all(axis=1) & np.isfinite(u).all(axis=1)
+                 & ~(dd <= 0).any(axis=1))
         return H, valid
 
     def missing_neighbors(self, missing: np.ndarray, last_seen: np.ndarray, p_prev):
-        """Agents whose row lacks a neighbour: everyone, if anyone is missing."""
-        return np.full(len(self.agents), bool(missing.any()))
+        """Missing neighbours drop out of the sum (:meth:`rows`): no row is excluded."""
+        return np.zeros(len(self.agents), dtype=bool)
 
     def to_model(self, theta, theta_se, noise_cov, bases, dt, frame_id='map', datum=None):
         n, K = len(self.agents), self.basis.size
@@ -145,19 +150,9 @@ class SharedRegressor:
         return shared_rows(p_prev, p_cur, dt, self.profile, self.basis)
 
     def missing_neighbors(self, missing: np.ndarray, last_seen: np.ndarray, p_prev):
-        """Agents within the radius of an absent animal's last seen position."""
-        out = np.zeros(len(self.agents), dtype=bool)
-        gone = missing & np.isfinite(last_seen).all(axis=1)
-        if not gone.any():
-            return out
-        from scipy.spatial import cKDTree
-        ok = np.flatnonzero(np.isfinite(p_prev).all(axis=1))
-        if len(ok) == 0:
-            return out
-        hits = cKDTree(p_prev[ok]).query_ball_point(last_seen[gone], self.profile.radius)
-        for h in hits:  # one list per absent animal (few), not per agent
-            out[ok[h]] = True
-        return out
+        """Missing neighbours drop out of the sum (DESIGN.md, ``predict``): no row is
+        excluded."""
+        return np.zeros(len(self.agents), dtype=bool)
 
     def to_model(self, theta, theta_se, noise_cov, bases, dt, frame_id='map', datum=None):
         B, K = self.profile.size, self.basis.size
