@@ -18,11 +18,10 @@ import yaml
 from matplotlib.path import Path as PolyPath
 
 from conftest import REPO
-from herd_ros.io.bags import read_messages
-from herd_ros.nodes.live_demo import DEMO_FIELD_BOUNDS, DEMO_FIELD_GRID, PADDOCK_DATUM, \
-    _NoAliasDumper, demo_parameters, first_positions
+from herd_ros.herd_setup import herd_setup_from_fixes
+from herd_ros.io.bags import read_fix_bag, read_messages
+from herd_ros.nodes.live_demo import _NoAliasDumper, demo_parameters
 from herd_ros.simulation.statistics import STATISTICS, herd_statistics
-from herd_ros.synthesis.cow_scenario import Paddock
 from herd_ros.trajectory import HerdTrajectory
 
 BAG = REPO / 'bags' / 'cows_3x1h'
@@ -51,10 +50,10 @@ def _poses(msg):
 
 @pytest.mark.slow
 def test_robots_learn_from_replayed_cows_and_move_like_them(tmp_path, ros_env, console_script):
-    fence = Paddock().fence
-    params = demo_parameters(BAG, tmp_path, AGENTS, ROBOTS, RATE, DT, fence,
-                             first_positions(BAG, AGENTS, PADDOCK_DATUM), DEMO_FIELD_GRID,
-                             DEMO_FIELD_BOUNDS)
+    setup = herd_setup_from_fixes(read_fix_bag(BAG), dt=DT, rate=RATE)
+    assert setup.agents == AGENTS and setup.robots == ROBOTS
+    fence = np.asarray(setup.fence)
+    params = demo_parameters(BAG, tmp_path, setup, RATE)
     params['replay']['ros__parameters']['exit_when_done'] = True
     params['replay']['ros__parameters']['wait_for_subscribers'] = 1
     params['gps_ingest']['ros__parameters']['fix_queue_depth'] = 1000

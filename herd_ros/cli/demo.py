@@ -1,9 +1,11 @@
-"""`herd-ros demo`: the main job on the shipped cow bag.
+"""`herd-ros demo`: the main job on a recorded herd (by default the shipped real one).
 
 Live (default): the ROS graph replay → gps_ingest → estimator → controller → fleet_sim in one
-process (:mod:`herd_ros.nodes.live_demo`), the bag replayed at ``--rate``; robots learn from
-the cows while they graze and move like them. Report: parameters over time, robots vs cows
-over the fence, statistics bars, ``summary.json``.
+process (:mod:`herd_ros.nodes.live_demo`); robots learn from the animals while they move and
+move like them. Everything herd-specific (datum, clock, field, fence, robots, replay rate)
+comes from the bag (:mod:`herd_ros.herd_setup`) and is printed. Report: parameters over time,
+robots vs animals over the fence, statistics bars, ``summary.json``, ``herd_poses.csv``,
+``herd_predictions.csv``.
 
 ``--offline``: bag → ingest → batch fit → validation against constant-velocity and stay-put
 baselines → simulation of the learned laws → the paper's figures.
@@ -16,43 +18,41 @@ from pathlib import Path
 
 from herd_ros.errors import HerdInputError
 
-HELP = 'run the main job on the shipped cow bag (live ROS graph, or --offline fit)'
+HELP = 'run the main job on a recorded herd (live ROS graph, or --offline fit)'
 
-BAG_NAME = 'cows_3x1h'
-# The live graph's herd clock: slow grazing under 2.5 m collar noise needs steps long enough
-# for motion to show over the noise, and an hour of data enough of them for the law
-# (measured on the shipped bag with test/test_live_graph.py: 10 s gives robots that are too
-# regular, 30 s robots that are too fast).
-LIVE_DT = 20.0
-OFFLINE_DT = 10.0
+#: The default recording: 19 wild baboons, one hour of 1 Hz GPS (real animals: see
+#: bags/README.md for why this one).
+BAG_NAME = 'baboons_1h'
 
 
-def shipped_bag() -> Path:
-    """The cow bag: ./bags/ of a source checkout, else the installed share directory."""
-    local = Path.cwd() / 'bags' / BAG_NAME
-    if local.exists():
-        return local
+def shipped_bag(name: str = BAG_NAME) -> Path:
+    """A shipped bag: ./bags/ of a source checkout, else the installed share directory."""
+    local = Path(__file__).resolve().parents[2] / 'bags' / name
+    for candidate in (Path.cwd() / 'bags' / name, local):
+        if candidate.exists():
+            return candidate
     try:
         from ament_index_python.packages import get_package_share_directory
-        share = Path(get_package_share_directory('herd_ros')) / 'bags' / BAG_NAME
+        share = Path(get_package_share_directory('herd_ros')) / 'bags' / name
         if share.exists():
             return share
     except Exception:  # noqa: BLE001 — no ament index: fall through to the error
         pass
-    raise HerdInputError(f'the shipped bag {BAG_NAME} was found neither in ./bags nor in the '
+    raise HerdInputError(f'the shipped bag {name} was found neither in ./bags nor in the '
                          f'herd_ros share directory; pass --bag')
 
 
 def add_arguments(p):
     p.add_argument('--out', default='demo_out', help='report directory')
-    p.add_argument('--bag', help=f'bag to use (default: the shipped bags/{BAG_NAME})')
+    p.add_argument('--bag', help=f'bag to use (default: the shipped bags/{BAG_NAME}, 19 wild '
+                                 f'baboons)')
     p.add_argument('--dt', type=float, default=None,
-                   help='herd clock step (s); default 20 live, 10 offline')
-    p.add_argument('--accel-std', type=float, default=0.02,
-                   help='filter acceleration std (m/s^2); grazing cattle accelerate gently')
-    p.add_argument('--grid', default='6x6', help='RBF grid of the environment field')
+                   help='herd clock step (s); default: from the fix intervals')
+    p.add_argument('--grid', default='4x3',
+                   help='RBF grid of the environment field (--offline)')
     p.add_argument('--seed', type=int, default=0)
-    p.add_argument('--rate', type=float, default=40.0, help='bag replay speed-up (live demo)')
+    p.add_argument('--rate', type=float, default=None,
+                   help='bag replay speed-up; default: the bag plays in about two minutes')
     p.add_argument('--offline', action='store_true',
                    help='offline pipeline instead: ingest, batch fit, validation, simulation')
 
@@ -61,23 +61,33 @@ def run(args) -> int:
     if args.offline:
         return run_offline(args)
     from herd_ros.nodes.live_demo import run_live_demo
-    if args.rate <= 0:
+    if args.rate is not None and not args.rate > 0:
         raise HerdInputError(f'--rate must be positive, got {args.rate}')
+    if args.dt is not None and not args.dt > 0:
+        raise HerdInputError(f'--dt must be positive, got {args.dt}')
     bag = Path(args.bag) if args.bag else shipped_bag()
+    if not bag.exists():
+        raise HerdInputError(f'{bag}: no such bag')
     t0 = time.perf_counter()
-    summary = run_live_demo(bag, args.out, rate=args.rate, dt=args.dt or LIVE_DT)
+    summary = run_live_demo(bag, args.out, rate=args.rate, dt=args.dt)
     print(f'\ndemo done in {time.perf_counter() - t0:.0f} s: {summary["herd_snapshots"]} herd '
           f'snapshots, {summary["model_updates"]} model updates, {summary["robot_samples"]} '
-          f'robot samples. Herd statistics, cows vs robots (mean over the herd):')
+          f'robot samples. Herd statistics, animals vs robots (mean over the herd):')
     cows, robots = summary['cows'], summary['robots']
     for key in ('mean_distance', 'std_distance', 'mean_speed', 'std_speed'):
         c = sum(v[key] for v in cows.values()) / max(len(cows), 1)
         r = sum(v[key] for v in robots.values()) / max(len(robots), 1)
         unit = 'm' if 'distance' in key else 'm/s'
-        print(f'  {key:14s} cows {c:8.3f} {unit:3s}  robots {r:8.3f} {unit:3s}  '
+        print(f'  {key:14s} animals {c:8.3f} {unit:3s}  robots {r:8.3f} {unit:3s}  '
               f'({100 * summary["herd_relative_difference"].get(key, float("nan")):.0f} % apart)')
+    sk = summary['prediction_skill']
+    print(f'One-step predictions of the live estimator over the second half '
+          f'({sk["samples"]} animal-ticks), RMS: model {sk["model"]:.3f} m, constant velocity '
+          f'{sk["constant_velocity"]:.3f} m, stay-put {sk["stay_put"]:.3f} m, damping only '
+          f'{sk["damping_only"]:.3f} m')
     print(f'report: {args.out}/fig_params.png, fig_trajectories.png, fig_statistics.png, '
-          f'summary.json; learned model: {summary["model_file"]}')
+          f'summary.json, herd_poses.csv, herd_predictions.csv; learned model: '
+          f'{summary["model_file"]}')
     return 0
 
 
@@ -90,8 +100,8 @@ def run_offline(args) -> int:
     traj = out / 'cows_filtered.csv'
     model = out / 'cows_model.yaml'
     steps = [
-        ('ingest', ['ingest', str(bag), '-o', str(traj), '--dt', str(args.dt or OFFLINE_DT),
-                    '--accel-std', str(args.accel_std)]),
+        ('ingest', ['ingest', str(bag), '-o', str(traj)]
+         + (['--dt', str(args.dt)] if args.dt else [])),
         ('fit', ['fit', str(traj), '-o', str(model), '--grid', args.grid,
                  '--report', str(out / 'report'), '--seed', str(args.seed)]),
         ('simulate', ['simulate', str(model), '--steps', '360', '--initial', str(traj),

@@ -5,9 +5,13 @@ same nodes and topics as ``launch/herd.launch.py``. Every node reads its own sec
 replay follow the bag's ``/clock`` (``use_sim_time``), so the robots live in the cows' time
 while the bag plays faster than real time.
 
+Nothing in it is specific to one herd: the datum, the herd clock, the field, the fence, the
+robots' start and speed and the replay rate come from the bag
+(:func:`herd_ros.herd_setup.herd_setup_from_fixes`).
+
 A small recorder node keeps what the report needs: the herd snapshots (``/herd/poses``), the
-robots at the same ticks (``/fleet/poses``) and the learned parameters over time
-(``/herd/model/params``).
+estimator's one-step predictions as published (``/herd/model/prediction``), the robots at the
+same ticks (``/fleet/poses``) and the learned parameters over time (``/herd/model/params``).
 """
 from __future__ import annotations
 
@@ -18,9 +22,6 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-
-PADDOCK_DATUM = [27.0153, -108.7937, 0.0]
-
 
 class _NoAliasDumper(yaml.SafeDumper):
     """ROS's parameter-file parser refuses YAML anchors and aliases."""
@@ -39,11 +40,13 @@ class DemoRecorder:
         self.lock = threading.Lock()
         self.herd_times, self.herd, self.robots = [], [], []
         self.param_times, self.params = [], []
+        self.pred_times, self.preds = [], []
         self.latest_robots = np.full((n_robots, 2), np.nan)
         self.robots_moved = False
         node.create_subscription(PoseArray, '/herd/poses', self.on_herd, 100)
         node.create_subscription(PoseArray, '/fleet/poses', self.on_fleet, 100)
         node.create_subscription(Float64MultiArray, '/herd/model/params', self.on_params, 100)
+        node.create_subscription(PoseArray, '/herd/model/prediction', self.on_prediction, 100)
         self.first_fleet = None
 
     @staticmethod
@@ -56,6 +59,12 @@ class DemoRecorder:
             self.herd_times.append(t)
             self.herd.append(self._xy(msg))
             self.robots.append(self.latest_robots.copy())
+
+    def on_prediction(self, msg):
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        with self.lock:
+            self.pred_times.append(t)
+            self.preds.append(self._xy(msg))
 
     def on_fleet(self, msg):
         xy = self._xy(msg)
@@ -78,100 +87,87 @@ class DemoRecorder:
             self.params.append(theta.reshape(dims[0].size, dims[1].size))
 
 
-def first_positions(bag, agents, datum) -> np.ndarray:
-    """ENU position of each agent's first valid fix in the bag (where the robots start)."""
-    from herd_ros.ingest.geodesy import geodetic_to_enu
-    from herd_ros.io.bags import read_fix_bag
-    fixes = read_fix_bag(bag)
-    out = np.zeros((len(agents), 2))
-    for i, a in enumerate(agents):
-        f = fixes[(fixes['agent'] == a) & np.isfinite(fixes['lat']) & np.isfinite(fixes['lon'])]
-        if 'status' in f:
-            f = f[f['status'] >= 0]
-        row = f.sort_values('time').iloc[0]
-        e, n, _ = geodetic_to_enu(row['lat'], row['lon'], 0.0, *datum)
-        out[i] = (float(e), float(n))
-    return out
-
-
-def demo_parameters(bag, out_dir, agents, robots, rate, dt, fence, start, grid, bounds) -> dict:
-    """One parameters mapping with a section per node."""
+def demo_parameters(bag, out_dir, setup, rate) -> dict:
+    """One parameters mapping with a section per node, all from the :class:`HerdSetup`."""
     common = {'use_sim_time': True}
     init = []
-    for x, y in start:
+    for x, y in setup.robot_start:
         init += [float(x), float(y), 0.0]
-    herd = {'agents': list(agents), 'dt': float(dt)}
-    field = {'field_grid': [int(g) for g in grid], 'field_bounds': [float(b) for b in bounds]}
+    dt = float(setup.dt)
+    herd = {'agents': list(setup.agents), 'dt': dt}
+    field = {'field_grid': [int(g) for g in setup.field_grid],
+             'field_bounds': [float(b) for b in setup.field_bounds]}
+    fence = [float(v) for v in np.asarray(setup.fence).ravel()]
+    v_max = float(setup.robot_max_speed)
     return {
         'replay': {'ros__parameters': {'bag': str(bag), 'rate': float(rate), 'loop': False,
                                        'publish_clock': True, 'wait_for_subscribers': 1,
-                                       # /clock every 1 s of bag time at rate 40: enough for
-                                       # 20 s timers, and every clock message is a callback
-                                       # in every node of this one Python process
+                                       # /clock at 40 Hz of wall time is enough for timers of
+                                       # a second or more, and every clock message is a
+                                       # callback in every node of this one Python process
                                        'clock_rate_hz': 40.0,
                                        'exit_when_done': False}},
-        'gps_ingest': {'ros__parameters': {**common, **herd, 'datum': PADDOCK_DATUM,
-                                           'accel_std': 0.02}},
+        'gps_ingest': {'ros__parameters': {**common, **herd, 'datum': list(setup.datum),
+                                           'stale_after': float(setup.stale_after),
+                                           'reinit_after_gap': float(setup.reinit_after_gap),
+                                           'fix_queue_depth': 1000}},
         'estimator': {'ros__parameters': {
-            **common, **herd, **field, 'law': 'pairwise', 'forgetting': 1.0,
+            **common, **herd, **field, 'law': setup.law, 'forgetting': 1.0,
+            'interaction_radius': float(setup.interaction_radius),
             'model_out': str(Path(out_dir) / 'learned_model.yaml'),
             'checkpoint_path': str(Path(out_dir) / 'estimator_checkpoint.npz'),
             'checkpoint_period_s': 3600.0}},
         'controller': {'ros__parameters': {
-            **common, **field, 'robots': list(robots), 'assignment': list(agents),
-            'agents': list(agents), 'dt': float(dt), 'mode': 'herd_model',
-            # the estimator's first five minutes of data are too few for a usable law
-            'model_source': 'topic', 'model_min_updates': int(np.ceil(300.0 / dt)),
+            **common, **field, 'robots': list(setup.robots), 'assignment': list(setup.agents),
+            'agents': list(setup.agents), 'dt': dt, 'mode': 'herd_model',
+            # the estimator's first five minutes of data (at least 30 steps) are too few
+            # for a usable law
+            'model_source': 'topic', 'model_min_updates': int(max(30, np.ceil(300.0 / dt))),
             'noise': True, 'seed': 0,
             # one command per model step: the robots run the learned discrete law exactly
-            'rate_hz': 1.0 / float(dt), 'safety_horizon_s': float(dt),
-            'max_speed': 1.5, 'kinematics': 'holonomic', 'odom_timeout_s': 3.0 * float(dt),
-            'fence': [float(v) for v in np.asarray(fence).ravel()]}},
+            'rate_hz': 1.0 / dt, 'safety_horizon_s': dt,
+            'max_speed': v_max, 'kinematics': 'holonomic', 'odom_timeout_s': 3.0 * dt,
+            'fence': fence}},
         'fleet_sim': {'ros__parameters': {
-            **common, 'robots': list(robots), 'kinematics': 'holonomic', 'rate_hz': 0.5,
-            'initial_poses': init, 'max_speed': 1.5, 'max_accel': 0.5,
-            'cmd_timeout_s': 1.5 * float(dt),
-            'fence': [float(v) for v in np.asarray(fence).ravel()], 'datum': PADDOCK_DATUM}},
+            **common, 'robots': list(setup.robots), 'kinematics': 'holonomic',
+            'rate_hz': float(min(2.0, 2.0 / dt)), 'initial_poses': init, 'max_speed': v_max,
+            'max_accel': float(max(0.5, v_max)), 'cmd_timeout_s': 1.5 * dt,
+            'fence': fence, 'datum': list(setup.datum)}},
     }
 
 
-# A coarse field for one hour of data: ~400 parameters would be learned from 360 snapshots
-# with a fine grid, and robots driven by an over-fitted field wander off (measured).
-DEMO_FIELD_GRID = (4, 3)
-DEMO_FIELD_BOUNDS = (-200.0, 200.0, -150.0, 150.0)
+def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = None,
+                  progress_period_s=5.0, log=print) -> dict:
+    """Play ``bag`` through the composed graph; returns the summary written to ``out_dir``.
 
-
-def run_live_demo(bag, out_dir, rate: float = 40.0, dt: float = 20.0, grid=DEMO_FIELD_GRID,
-                  bounds=DEMO_FIELD_BOUNDS, fence=None, progress_period_s=5.0,
-                  log=print) -> dict:
-    """Play ``bag`` through the composed graph; returns the summary written to ``out_dir``."""
+    ``rate`` and ``dt`` default to what the bag implies (:mod:`herd_ros.herd_setup`)."""
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
-    from herd_ros.io.bags import bag_info
+    from herd_ros.herd_setup import herd_setup_from_fixes
+    from herd_ros.io.bags import bag_info, read_fix_bag
     from herd_ros.nodes.controller import Controller
     from herd_ros.nodes.estimator import Estimator
     from herd_ros.nodes.fleet_sim import FleetSim
     from herd_ros.nodes.gps_ingest import GpsIngest
     from herd_ros.nodes.replay import Replay
     from herd_ros.report.demo_report import write_demo_report
-    from herd_ros.synthesis.cow_scenario import Paddock
     from herd_ros.trajectory import HerdTrajectory
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     info = bag_info(bag)
-    agents = sorted(t.split('/')[2] for t in info.topics if t.startswith('/herd/')
-                    and t.endswith('/fix'))
-    robots = [f'robot_{k + 1}' for k in range(len(agents))]
-    fence = Paddock().fence if fence is None else np.asarray(fence, dtype=float)
-    start = first_positions(bag, agents, PADDOCK_DATUM)
-    params = demo_parameters(bag, out, agents, robots, rate, dt, fence, start, grid, bounds)
+    setup = herd_setup_from_fixes(read_fix_bag(bag), dt=dt, rate=rate)
+    rate = setup.rate
+    agents, robots = setup.agents, setup.robots
+    fence = np.asarray(setup.fence, dtype=float)
+    log(f'chosen from the bag {Path(bag).name}:\n{setup.describe()}')
+    params = demo_parameters(bag, out, setup, rate)
     params_file = out / 'demo_parameters.yaml'
     params_file.write_text(yaml.dump(params, Dumper=_NoAliasDumper, sort_keys=False))
     log(f'graph: replay({Path(bag).name}, rate {rate:g}) -> gps_ingest -> estimator -> '
-        f'controller -> fleet_sim; {len(agents)} cows, {len(robots)} robots; '
+        f'controller -> fleet_sim; {len(agents)} animals, {len(robots)} robots; '
         f'parameters: {params_file}')
 
     rclpy.init(args=['--ros-args', '--params-file', str(params_file)])
@@ -222,23 +218,31 @@ def run_live_demo(bag, out_dir, rate: float = 40.0, dt: float = 20.0, grid=DEMO_
         rclpy.try_shutdown()
     model_path = out / 'learned_model.yaml'
     if estimator is not None:
-        estimator.core.save_model(model_path, datum=PADDOCK_DATUM)
+        estimator.core.save_model(model_path, datum=list(setup.datum))
     with recorder.lock:
         times = np.asarray(recorder.herd_times)
         cows = HerdTrajectory(times, agents, np.asarray(recorder.herd).reshape(-1, len(agents), 2))
         rob = np.asarray(recorder.robots).reshape(-1, len(robots), 2)
         param_times, thetas = list(recorder.param_times), list(recorder.params)
+        pred_times = np.asarray(recorder.pred_times)
+        preds = np.asarray(recorder.preds).reshape(-1, len(agents), 2)
     active = np.isfinite(rob).all(axis=(1, 2))
     if len(thetas):
         first_model_t = param_times[0]
         active &= times > first_model_t
     robots_traj = HerdTrajectory(times[active], robots, rob[active])
     from herd_ros.trajectory import write_trajectory_csv
-    write_trajectory_csv(out / 'cows_herd_poses.csv', cows)
+    predictions = HerdTrajectory(pred_times, agents, preds)
+    write_trajectory_csv(out / 'herd_poses.csv', cows)
+    write_trajectory_csv(out / 'herd_predictions.csv', predictions)
     write_trajectory_csv(out / 'robots_fleet_poses.csv', robots_traj)
-    facts = {'bag': str(bag), 'rate': rate, 'dt': dt, 'wall_time_s': time.monotonic() - t0,
+    from herd_ros.simulation.prediction import published_prediction_skill
+    skill = published_prediction_skill(cows, predictions, setup.dt)
+    facts = {'bag': str(bag), 'datum': list(setup.datum), 'dt': setup.dt, 'rate': rate,
+             'setup': setup.to_dict(), 'wall_time_s': time.monotonic() - t0,
              'herd_snapshots': int(len(times)), 'model_updates': int(len(thetas)),
-             'robot_samples': int(active.sum()), 'model_file': str(model_path)}
+             'robot_samples': int(active.sum()), 'model_file': str(model_path),
+             'prediction_skill': skill}
     return write_demo_report(out, cows, robots_traj, agents, param_times, thetas, fence, facts)
 
 

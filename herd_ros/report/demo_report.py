@@ -58,22 +58,23 @@ def trajectories_over_fence(cows: HerdTrajectory, robots: HerdTrajectory, fence,
         ax.plot(f[:, 0], f[:, 1], 'k-', lw=1.2, label='fence')
     for i, a in enumerate(cows.agents):
         ax.plot(cows.positions[:, i, 0], cows.positions[:, i, 1], '-', color=f'C{i}', lw=0.8,
-                label=f'{a} (cow)')
+                label=f'{a} (animal)' if len(cows.agents) <= 6 else None)
     for i, r in enumerate(robots.agents):
         ax.plot(robots.positions[:, i, 0], robots.positions[:, i, 1], '--', color=f'C{i}',
-                lw=0.8, label=f'{r} (robot)')
+                lw=0.8, label=f'{r} (robot)' if len(robots.agents) <= 6 else None)
     ax.set_aspect('equal')
     ax.set_xlabel('x east (m)')
     ax.set_ylabel('y north (m)')
     ax.legend(fontsize=7, loc='best')
-    ax.set_title('cows (solid) and the robots that learned from them (dashed)')
+    ax.set_title('animals (solid) and the robots that learned from them (dashed)')
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
 def _finite_rows(traj: HerdTrajectory) -> HerdTrajectory:
-    keep = np.isfinite(traj.positions).all(axis=(1, 2))
+    """The ticks where at least one agent has a position (missing agents stay NaN)."""
+    keep = np.isfinite(traj.positions).all(axis=2).any(axis=1)
     return HerdTrajectory(traj.times[keep], list(traj.agents), traj.positions[keep])
 
 

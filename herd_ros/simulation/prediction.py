@@ -90,3 +90,59 @@ def k_step_rms(model: HerdModel, runs: list[HerdTrajectory], ks=(1, 5, 10, 30),
                 counts[step] += truth.shape[0] * truth.shape[1]
     return {m: {k: float(np.sqrt(sums[m][k] / counts[k])) if counts[k] else float('nan')
                 for k in ks} for m in METHODS}
+
+
+def damping_only_fit(positions: np.ndarray) -> np.ndarray:
+    """Per-agent damping a of p̂^{τ+2} = p^{τ+1} + a (p^{τ+1} − p^τ), least squares over the
+    finite triples of ``positions`` (T, N, 2): a_i = Σ u^τ·u^{τ+1} / Σ |u^τ|² (NaN skipped).
+    The simplest model the herd model nests (no interactions, no field)."""
+    p = np.asarray(positions, dtype=float)
+    u = np.diff(p, axis=0)
+    num = np.nansum((u[:-1] * u[1:]).sum(-1), axis=0)
+    den = np.nansum((u[:-1] * u[:-1]).sum(-1) * np.isfinite(u[1:]).all(-1), axis=0)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        return np.where(den > 0, num / den, 0.0)
+
+
+def published_prediction_skill(herd: HerdTrajectory, predictions: HerdTrajectory, dt: float,
+                               from_fraction: float = 0.5) -> dict:
+    """One-step skill of predictions as a live estimator published them, next to baselines.
+
+    ``predictions.positions[k]`` is the position predicted for time ``predictions.times[k]``
+    (a herd-clock tick). Over the ticks t in the last ``1 − from_fraction`` of ``herd``'s
+    span where the truth p(t), p(t − Δt), p(t − 2Δt) and the prediction are all finite:
+
+    * model: the published prediction;
+    * constant velocity: p(t − Δt) + (p(t − Δt) − p(t − 2Δt));
+    * stay-put: p(t − Δt);
+    * damping only: p(t − Δt) + a_i (p(t − Δt) − p(t − 2Δt)), a_i fitted by
+      :func:`damping_only_fit` on the herd before the evaluated part (held out).
+
+    Returns {method: RMS (m)} plus ``samples`` (agent-ticks) and ``from_time``.
+    """
+    times = np.asarray(herd.times, dtype=float)
+    index = {round(t / dt): k for k, t in enumerate(times)}
+    t_split = times[0] + from_fraction * (times[-1] - times[0]) if len(times) else np.nan
+    p = herd.positions
+    a = damping_only_fit(p[times < t_split]) if len(times) else np.zeros(p.shape[1])
+    errs = {m: [] for m in ('model', 'constant_velocity', 'stay_put', 'damping_only')}
+    for t, pred in zip(predictions.times, predictions.positions):
+        if t < t_split:
+            continue
+        k0, k1, k2 = (index.get(round(t / dt) - j) for j in (0, 1, 2))
+        if k0 is None or k1 is None or k2 is None:
+            continue
+        truth, p1, p2 = p[k0], p[k1], p[k2]
+        ok = (np.isfinite(truth).all(-1) & np.isfinite(p1).all(-1) & np.isfinite(p2).all(-1)
+              & np.isfinite(pred).all(-1))
+        if not ok.any():
+            continue
+        v = p1 - p2
+        errs['model'].append((pred - truth)[ok])
+        errs['constant_velocity'].append((p1 + v - truth)[ok])
+        errs['stay_put'].append((p1 - truth)[ok])
+        errs['damping_only'].append((p1 + a[:, None] * v - truth)[ok])
+    out = {m: (float(_rms(np.concatenate(e))) if e else float('nan')) for m, e in errs.items()}
+    out['samples'] = int(sum(len(e) for e in errs['model']))
+    out['from_time'] = float(t_split)
+    return out

@@ -1,0 +1,152 @@
+"""What a herd recording implies for the live graph: datum, clock, field, fence, robots, rate.
+
+``herd-ros demo --bag ANY_BAG`` needs no tuning flags: everything that used to be a constant of
+the shipped synthetic paddock is derived here from the fixes themselves, by the offline ingest
+(:mod:`herd_ros.ingest.pipeline`, the same numerics as the ``gps_ingest`` node), so outlier
+bursts and silent collars cannot inflate the region or the speeds:
+
+* **datum**: the median latitude/longitude of the valid fixes (the centre of the herd's range,
+  robust to outliers; altitude 0);
+* **dt** (herd clock step): the median fix interval, rounded to a round step
+  (:func:`~herd_ros.ingest.pipeline.auto_dt`); ``stale_after`` and ``reinit_after_gap`` from
+  the fix intervals too (:func:`~herd_ros.ingest.pipeline.auto_filter_params`);
+* **field bounds**: the region the filtered herd visited, with a margin of 10 % of its extent
+  (at least 10 m); **field grid**: about :data:`FIELD_CELLS` cells of equal spacing over it
+  (an hour of data supports a coarse field only: a fine one over-fits and robots driven by
+  it wander off);
+* **fence**: the field bounds with a further margin (the same 10 %, at least 10 m), so the
+  robots have the animals' range and a little more;
+* **robots**: one per animal, starting where its animal was first seen; their speed limit is
+  1.5 × the 99th percentile of the animals' filtered speeds (0.5-5 m/s);
+* **law**: the paper's pairwise law for up to :data:`PAIRWISE_MAX_AGENTS` animals, the shared
+  interaction law for more (pairwise parameters grow with the herd and are not identified from
+  an hour of data); its radius is 4 × the median nearest-neighbour distance (10-200 m);
+* **rate**: so that the replay takes about ``target_wall_s`` (two minutes by default).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from herd_ros.errors import HerdInputError
+
+#: Field cells over the visited region (about; the grid follows its aspect ratio).
+FIELD_CELLS = 12
+#: Up to this many animals the demo learns the pairwise law; more get the shared law.
+PAIRWISE_MAX_AGENTS = 6
+#: Replay so that the bag takes about this long (s of wall time).
+TARGET_WALL_S = 120.0
+
+
+@dataclass
+class HerdSetup:
+    """Everything the live graph needs to know about one herd recording."""
+
+    agents: list[str]
+    datum: list[float]                    # lat, lon, alt
+    dt: float                             # herd clock step (s)
+    stale_after: float                    # s of data time
+    reinit_after_gap: float               # s
+    field_grid: list[int]                 # nx, ny
+    field_bounds: list[float]             # xmin, xmax, ymin, ymax (m)
+    fence: list[list[float]]              # polygon [[x, y], ...] (m)
+    robots: list[str]
+    robot_start: list[list[float]]        # [[x, y], ...] (m), one per robot
+    robot_max_speed: float                # m/s
+    law: str                              # 'pairwise' or 'shared'
+    interaction_radius: float             # m (shared law)
+    duration_s: float                     # data time spanned by the fixes
+    rate: float                           # replay speed-up
+    notes: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def describe(self) -> str:
+        """What was chosen, one line per item (the demo prints it)."""
+        lat, lon, alt = self.datum
+        b = self.field_bounds
+        return '\n'.join([
+            f'  herd: {len(self.agents)} animals over {self.duration_s / 3600:.1f} h of data',
+            f'  datum: lat {lat:.7f} lon {lon:.7f} (median of the valid fixes)',
+            f'  herd clock: dt {self.dt:g} s (median fix interval '
+            f'{self.notes.get("median_fix_interval_s", float("nan")):.3g} s); stale after '
+            f'{self.stale_after:.0f} s',
+            f'  field: {self.field_grid[0]} x {self.field_grid[1]} centres over x '
+            f'[{b[0]:.0f}, {b[1]:.0f}] m, y [{b[2]:.0f}, {b[3]:.0f}] m (visited region)',
+            f'  fence: {len(self.fence)}-gon, the field bounds with a margin',
+            f'  law: {self.law}' + (f' (radius {self.interaction_radius:.0f} m)'
+                                    if self.law == 'shared' else ''),
+            f'  robots: {len(self.robots)}, max speed {self.robot_max_speed:.2f} m/s',
+            f'  replay: rate {self.rate:g} (about {self.duration_s / self.rate:.0f} s)'])
+
+
+def _margin(lo, hi, fraction=0.1, least=10.0):
+    return max(least, fraction * (hi - lo))
+
+
+def herd_setup_from_fixes(fixes: pd.DataFrame, *, dt: float | None = None,
+                          rate: float | None = None,
+                          target_wall_s: float = TARGET_WALL_S) -> HerdSetup:
+    """Derive a :class:`HerdSetup` from a fixes table (see the module docstring)."""
+    from herd_ros.ingest.pipeline import (auto_dt, auto_filter_params, fix_intervals,
+                                          trajectory_from_fixes, valid_fix_mask)
+    from herd_ros.io.gps_files import normalise_fixes
+
+    fixes = normalise_fixes(fixes)
+    valid = valid_fix_mask(fixes)
+    if valid.sum() < 3:
+        raise HerdInputError('fewer than three valid fixes: nothing to set a herd up from')
+    datum = [float(np.median(fixes['lat'].to_numpy()[valid])),
+             float(np.median(fixes['lon'].to_numpy()[valid])), 0.0]
+    dt = float(dt) if dt is not None else auto_dt(fixes)
+    filt = auto_filter_params(fixes)
+    traj = trajectory_from_fixes(fixes, dt=dt, datum=datum, trim=True, **filt)
+    p = traj.positions
+    have = np.isfinite(p).all(axis=-1)
+    pts = p[have]
+    if len(pts) < 3:
+        raise HerdInputError('the filtered herd has fewer than three positions')
+    xmin, ymin = pts.min(axis=0)
+    xmax, ymax = pts.max(axis=0)
+    mx, my = _margin(xmin, xmax), _margin(ymin, ymax)
+    bounds = [float(xmin - mx), float(xmax + mx), float(ymin - my), float(ymax + my)]
+    w, h = bounds[1] - bounds[0], bounds[3] - bounds[2]
+    nx = int(np.clip(round(np.sqrt(FIELD_CELLS * w / h)), 1, FIELD_CELLS))
+    ny = int(np.clip(round(FIELD_CELLS / nx), 1, FIELD_CELLS))
+    fx, fy = _margin(bounds[0], bounds[1]), _margin(bounds[2], bounds[3])
+    x0, x1, y0, y1 = bounds[0] - fx, bounds[1] + fx, bounds[2] - fy, bounds[3] + fy
+    fence = [[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
+    start = []
+    for i in range(traj.n_agents):
+        k = int(np.argmax(have[:, i])) if have[:, i].any() else None
+        start.append([float(v) for v in (p[k, i] if k is not None else pts.mean(axis=0))])
+    steps = np.diff(p, axis=0)
+    speed = np.hypot(steps[..., 0], steps[..., 1]) / dt
+    speed = speed[np.isfinite(speed)]
+    v99 = float(np.percentile(speed, 99)) if len(speed) else 1.0
+    # typical spacing: median distance to the nearest other animal (on ≤ 2000 ticks)
+    q = p[np.unique(np.linspace(0, len(p) - 1, min(len(p), 2000)).astype(int))]
+    d = np.hypot(*(q[:, :, None, :] - q[:, None, :, :]).transpose(3, 0, 1, 2))
+    d[:, np.arange(traj.n_agents), np.arange(traj.n_agents)] = np.inf
+    nn = np.min(np.where(np.isfinite(d), d, np.inf), axis=2)
+    nn = nn[np.isfinite(nn)]
+    spacing = float(np.median(nn)) if len(nn) else 10.0
+    times = fixes['time'].to_numpy(float)[valid]
+    duration = float(times.max() - times.min())
+    if rate is None:
+        rate = max(1.0, float(f'{duration / target_wall_s:.2g}'))
+    agents = list(traj.agents)
+    return HerdSetup(
+        agents=agents, datum=datum, dt=dt, stale_after=float(filt['stale_after']),
+        reinit_after_gap=float(filt['reinit_after_gap']), field_grid=[nx, ny],
+        field_bounds=bounds, fence=fence, robots=[f'robot_{k + 1}' for k in range(len(agents))],
+        robot_start=start, robot_max_speed=float(np.clip(1.5 * v99, 0.5, 5.0)),
+        law='pairwise' if len(agents) <= PAIRWISE_MAX_AGENTS else 'shared',
+        interaction_radius=float(np.clip(4.0 * spacing, 10.0, 200.0)),
+        duration_s=duration, rate=float(rate),
+        notes={'median_fix_interval_s': float(np.median(fix_intervals(fixes))),
+               'speed_p99_m_s': v99, 'median_nearest_neighbour_m': spacing,
+               'visited_region': [float(xmin), float(xmax), float(ymin), float(ymax)]})
