@@ -18,9 +18,9 @@ bursts and silent collars cannot inflate the region or the speeds:
   robots have the animals' range and a little more;
 * **robots**: one per animal, starting where its animal was first seen; their speed limit is
   1.5 × the 99th percentile of the animals' filtered speeds (0.5-5 m/s);
-* **law**: the paper's pairwise law for up to :data:`PAIRWISE_MAX_AGENTS` animals, the shared
-  interaction law for more (pairwise parameters grow with the herd and are not identified from
-  an hour of data); its radius is 4 × the median nearest-neighbour distance (10-200 m);
+* **law**: the paper's pairwise law for up to :data:`PAIRWISE_MAX_AGENTS` animals (the live
+  controller follows pairwise laws), the shared interaction law for more; the shared law's
+  radius is 4 × the median nearest-neighbour distance (10-200 m);
 * **rate**: so that the replay takes about ``target_wall_s`` (two minutes by default).
 """
 from __future__ import annotations
@@ -35,7 +35,7 @@ from herd_ros.errors import HerdInputError
 #: Field cells over the visited region (about; the grid follows its aspect ratio).
 FIELD_CELLS = 12
 #: Up to this many animals the demo learns the pairwise law; more get the shared law.
-PAIRWISE_MAX_AGENTS = 6
+PAIRWISE_MAX_AGENTS = 30
 #: Replay so that the bag takes about this long (s of wall time).
 TARGET_WALL_S = 120.0
 

@@ -153,10 +153,13 @@ class HerdModel:
 
     # -- the deterministic part of eq. 2 --------------------------------------------------
     def interaction(self, positions: np.ndarray) -> np.ndarray:
-        """Σ_j f_ij for every agent: positions (..., N, 2) -> (..., N, 2)."""
+        """Σ_j f_ij for every agent: positions (..., N, 2) -> (..., N, 2). A missing
+        neighbour (NaN position) drops out of the sum."""
         _, dist, unit = pairwise_geometry(positions)
-        mag = self.theta1 - self.theta2 / dist  # (..., N, N); diagonal: 0 - 0/inf = 0
-        return (mag[..., None] * np.nan_to_num(unit)).sum(-2)
+        with np.errstate(invalid='ignore'):
+            mag = self.theta1 - self.theta2 / dist  # (..., N, N); diagonal: 0 - 0/inf = 0
+            terms = mag[..., None] * unit
+        return np.where(np.isfinite(terms), terms, 0.0).sum(-2)
 
     def environment(self, positions: np.ndarray) -> np.ndarray:
         """g_i(p_i) for every agent: positions (..., N, 2) -> (..., N, 2)."""

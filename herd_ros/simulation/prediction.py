@@ -19,7 +19,11 @@ METHODS = ('model', 'constant_velocity', 'stay_put')
 
 
 def _rms(err: np.ndarray, axis=None) -> np.ndarray:
-    return np.sqrt((err ** 2).sum(-1).mean(axis=axis))
+    """RMS of the Euclidean errors (..., 2), over the finite ones (a missing agent or
+    neighbour leaves NaN: not a prediction, not counted)."""
+    sq = (err ** 2).sum(-1)
+    with np.errstate(invalid='ignore'):
+        return np.sqrt(np.nanmean(sq, axis=axis))
 
 
 def one_step_errors(model: HerdModel, positions: np.ndarray) -> dict[str, np.ndarray]:
