@@ -8,8 +8,9 @@ bursts and silent collars cannot inflate the region or the speeds:
 * **datum**: the median latitude/longitude of the valid fixes (the centre of the herd's range,
   robust to outliers; altitude 0);
 * **dt** (herd clock step): the median fix interval, rounded to a round step
-  (:func:`~herd_ros.ingest.pipeline.auto_dt`); ``stale_after`` and ``reinit_after_gap`` from
-  the fix intervals too (:func:`~herd_ros.ingest.pipeline.auto_filter_params`);
+  (:func:`~herd_ros.ingest.pipeline.auto_dt`), and at least ``min_dt`` (the live demo asks
+  for :data:`LIVE_MIN_DT`); ``stale_after`` and ``reinit_after_gap`` from the fix intervals
+  too (:func:`~herd_ros.ingest.pipeline.auto_filter_params`);
 * **field bounds**: the region the filtered herd visited, with a margin of 10 % of its extent
   (at least 10 m); **field grid**: about :data:`FIELD_CELLS` cells of equal spacing over it
   (an hour of data supports a coarse field only: a fine one over-fits and robots driven by
@@ -18,9 +19,12 @@ bursts and silent collars cannot inflate the region or the speeds:
   robots have the animals' range and a little more;
 * **robots**: one per animal, starting where its animal was first seen; their speed limit is
   1.5 × the 99th percentile of the animals' filtered speeds (0.5-5 m/s);
-* **law**: the paper's pairwise law for up to :data:`PAIRWISE_MAX_AGENTS` animals (the live
-  controller follows pairwise laws), the shared interaction law for more; the shared law's
-  radius is 4 × the median nearest-neighbour distance (10-200 m);
+* **law**: the paper's pairwise law for up to :data:`PAIRWISE_MAX_AGENTS` animals, the shared
+  interaction law for more: the pairwise law has 2(N − 1) pair parameters per animal, most of
+  them not identified from hours of data, and their errors add up over the neighbours (the
+  baboons' pairwise law simulates robots 5 × faster than the animals, measured, against
+  about +25 % for the shared law); the shared law's radius is 4 × the median
+  nearest-neighbour distance (10-200 m);
 * **rate**: so that the replay takes about ``target_wall_s`` (two minutes by default).
 """
 from __future__ import annotations
@@ -35,9 +39,16 @@ from herd_ros.errors import HerdInputError
 #: Field cells over the visited region (about; the grid follows its aspect ratio).
 FIELD_CELLS = 12
 #: Up to this many animals the demo learns the pairwise law; more get the shared law.
-PAIRWISE_MAX_AGENTS = 30
+PAIRWISE_MAX_AGENTS = 6
 #: Replay so that the bag takes about this long (s of wall time).
 TARGET_WALL_S = 120.0
+#: Shortest herd clock of the live demo (s). The composed graph replays an hour in two
+#: minutes in one Python process; with 19 baboons on a 1 s clock it saturated a core and
+#: lost about half of the animal-ticks to stale collars, and the law learned at 1 s drove the
+#: robots 30-80 % off the animals' statistics; at 5 s nothing was lost and all four
+#: statistics were within 20 % (measured on bags/baboons_1h). Motion at 1 s is mostly
+#: filter smoothing: a step of a few seconds is what the model can learn from.
+LIVE_MIN_DT = 5.0
 
 
 @dataclass
@@ -72,8 +83,8 @@ class HerdSetup:
             f'  herd: {len(self.agents)} animals over {self.duration_s / 3600:.1f} h of data',
             f'  datum: lat {lat:.7f} lon {lon:.7f} (median of the valid fixes)',
             f'  herd clock: dt {self.dt:g} s (median fix interval '
-            f'{self.notes.get("median_fix_interval_s", float("nan")):.3g} s); stale after '
-            f'{self.stale_after:.0f} s',
+            f'{self.notes.get("median_fix_interval_s", float("nan")):.3g} s, live clock at '
+            f'least {LIVE_MIN_DT:g} s); stale after {self.stale_after:.0f} s',
             f'  field: {self.field_grid[0]} x {self.field_grid[1]} centres over x '
             f'[{b[0]:.0f}, {b[1]:.0f}] m, y [{b[2]:.0f}, {b[3]:.0f}] m (visited region)',
             f'  fence: {len(self.fence)}-gon, the field bounds with a margin',
@@ -88,7 +99,7 @@ def _margin(lo, hi, fraction=0.1, least=10.0):
 
 
 def herd_setup_from_fixes(fixes: pd.DataFrame, *, dt: float | None = None,
-                          rate: float | None = None,
+                          rate: float | None = None, min_dt: float = 0.0,
                           target_wall_s: float = TARGET_WALL_S) -> HerdSetup:
     """Derive a :class:`HerdSetup` from a fixes table (see the module docstring)."""
     from herd_ros.ingest.pipeline import (auto_dt, auto_filter_params, fix_intervals,
@@ -101,7 +112,7 @@ def herd_setup_from_fixes(fixes: pd.DataFrame, *, dt: float | None = None,
         raise HerdInputError('fewer than three valid fixes: nothing to set a herd up from')
     datum = [float(np.median(fixes['lat'].to_numpy()[valid])),
              float(np.median(fixes['lon'].to_numpy()[valid])), 0.0]
-    dt = float(dt) if dt is not None else auto_dt(fixes)
+    dt = float(dt) if dt is not None else max(auto_dt(fixes), float(min_dt))
     filt = auto_filter_params(fixes)
     traj = trajectory_from_fixes(fixes, dt=dt, datum=datum, trim=True, **filt)
     p = traj.positions

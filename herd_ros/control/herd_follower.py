@@ -178,3 +178,88 @@ def model_from_parameter_matrix(theta: np.ndarray, agents: list[str], dt: float,
                                noise_cov=(np.zeros((2, 2)) if noise_cov is None
                                           else noise_cov[i]))
     return HerdModel(agents=list(agents), dt=float(dt), laws=laws)
+
+
+def robot_shared_model(model, assignment: list[str], robots: list[str] | None = None):
+    """A :class:`~herd_ros.model.shared_law.SharedLawModel` over robots: robot k carries the
+    damping, distance profile F_A(k), field and noise of animal ``assignment[k]``; its
+    neighbours are the other robots within the interaction radius (the shared law needs no
+    pair parameters, so any assignment works, two robots on one animal included)."""
+    from herd_ros.model.shared_law import SharedLawModel
+    assignment = [str(a) for a in assignment]
+    robots = list(robots) if robots is not None else [f'robot_{k + 1}'
+                                                      for k in range(len(assignment))]
+    if len(robots) != len(assignment):
+        raise HerdInputError(f'assignment has {len(assignment)} animals for {len(robots)} robots')
+    unknown = sorted(set(assignment) - set(model.agents))
+    if unknown:
+        raise HerdInputError(f'assignment names animal(s) {", ".join(unknown)} the model '
+                             f'does not have (model agents: {", ".join(model.agents)})')
+    idx = [model.agents.index(a) for a in assignment]
+    return SharedLawModel(agents=robots, dt=model.dt, profile=model.profile,
+                          damping=model.damping[idx], profile_coef=model.profile_coef[idx],
+                          bases=[model.bases[i] for i in idx],
+                          field_u=[model.field_u[i] for i in idx],
+                          field_v=[model.field_v[i] for i in idx],
+                          noise_cov=model.noise_cov[idx], frame_id=model.frame_id,
+                          datum=model.datum)
+
+
+class SharedLawFollower(HerdFollower):
+    """:class:`HerdFollower` for the shared interaction law (``kind: schwager2007_shared``):
+    u_k^{τ+1} = a_A(k) u_k^τ + Σ_{j≠k, d<r} F_A(k)(d_kj) e_kj + g_A(k)(p_k) + w_k, the
+    neighbours j being the other active robots (same rate handling as the pairwise law)."""
+
+    def __init__(self, model, assignment: list[str], robots: list[str] | None = None,
+                 noise: bool = False, seed=None):
+        self.model = robot_shared_model(model, assignment, robots)
+        self.robots = list(self.model.agents)
+        self.dt = float(model.dt)
+        self.damping = self.model.damping
+        self.noise = bool(noise)
+        self.noise_factor = noise_factors(self.model.noise_cov)
+        self.rng = np.random.default_rng(seed)
+
+    def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
+        """Σ_j F(d) e + g for every robot; inactive robots (NaN, stale) exert nothing."""
+        p = np.asarray(positions, dtype=float).reshape(-1, 2)
+        active = np.ones(len(p), bool) if active is None else np.asarray(active, bool)
+        active = active & np.isfinite(p).all(-1)
+        p_active = np.where(active[:, None], p, np.nan)
+        p_safe = np.where(active[:, None], p, 0.0)
+        return self.model.interaction(p_active) + self.model.environment(p_safe)
+
+
+def follower_for(model, assignment: list[str], robots: list[str] | None = None,
+                 noise: bool = False, seed=None) -> HerdFollower:
+    """The follower for the model's law (pairwise :class:`HerdModel` or shared)."""
+    from herd_ros.model.shared_law import SharedLawModel
+    cls = SharedLawFollower if isinstance(model, SharedLawModel) else HerdFollower
+    return cls(model, assignment, robots, noise=noise, seed=seed)
+
+
+def shared_model_from_parameter_matrix(theta: np.ndarray, agents: list[str], dt: float, grid,
+                                       radius: float, profile_size: int,
+                                       noise_cov: np.ndarray | None = None):
+    """A shared-law model from the estimator's parameter matrix (N, 1 + B + 2K): rows
+    [damping, profile_1..B, field_u.., field_v..] on every centre of ``grid``, the profile
+    :meth:`~herd_ros.model.shared_law.DistanceProfile.even` over ``radius`` with B terms."""
+    from herd_ros.model.rbf_field import RbfBasis
+    from herd_ros.model.shared_law import DistanceProfile, SharedLawModel
+    theta = np.asarray(theta, dtype=float)
+    n, B = len(agents), int(profile_size)
+    basis = RbfBasis.from_grid(grid)
+    k = basis.size
+    width = 1 + B + 2 * k
+    if theta.shape != (n, width):
+        got = ' x '.join(str(d) for d in theta.shape)
+        raise HerdInputError(f'/herd/model/params: expected {n} agents x {width} parameters '
+                             f'(1 + {B} profile + 2·{k} field, shared law), got {got}')
+    if not np.isfinite(theta).all():
+        raise HerdInputError('/herd/model/params: parameters contain NaN or inf')
+    return SharedLawModel(
+        agents=list(agents), dt=float(dt), profile=DistanceProfile.even(float(radius), B),
+        damping=theta[:, 0], profile_coef=theta[:, 1:1 + B], bases=[basis] * n,
+        field_u=[theta[i, 1 + B:1 + B + k] for i in range(n)],
+        field_v=[theta[i, 1 + B + k:] for i in range(n)],
+        noise_cov=np.zeros((n, 2, 2)) if noise_cov is None else noise_cov)

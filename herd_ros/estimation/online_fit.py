@@ -406,10 +406,11 @@ class OnlineHerdEstimator:
         n = len(self.agents)
         buf_t = np.full(3, np.nan)
         buf_p = np.full((3, n, 2), np.nan)
-        k = len(self.buffer_times)
-        buf_t[:k] = self.buffer_times
+        times, positions = self.buffer_times[-3:], self.buffer_positions[-3:]
+        k = len(times)
+        buf_t[:k] = times
         if k:
-            buf_p[:k] = np.stack(self.buffer_positions)
+            buf_p[:k] = np.stack(positions)
         arrays = {f'rls_{key}': v for key, v in self.rls.state().items()}
         arrays.update(buffer_times=buf_t, buffer_positions=buf_p, last_seen=self.last_seen,
                       visits=self.visits, stat_sq=self.stat_sq, stat_w=self.stat_w,
@@ -474,8 +475,8 @@ def online_fit(runs, law: str = 'pairwise', grid=(6, 6), bounds=None, forgetting
     agents, dt = check_runs(runs)
     positions = [aligned_positions(r, agents) for r in runs]
     if bounds is None:
-        bounds = FieldGrid.over(np.concatenate([p.reshape(-1, 2) for p in positions]),
-                                grid[0], grid[1]).bounds
+        pts = np.concatenate([p.reshape(-1, 2) for p in positions])
+        bounds = FieldGrid.over(pts[np.isfinite(pts).all(-1)], grid[0], grid[1]).bounds
     est = OnlineHerdEstimator(agents, dt, law, grid, bounds, forgetting, p0, **kwargs)
     times, labels, thetas, samples = [], [], [], []
     for run, p in zip(runs, positions):

@@ -27,7 +27,9 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
 from herd_ros.control import kinematics as kin
-from herd_ros.control.herd_follower import HerdFollower, model_from_parameter_matrix
+from herd_ros.control.herd_follower import (HerdFollower, follower_for,
+                                            model_from_parameter_matrix,
+                                            shared_model_from_parameter_matrix)
 from herd_ros.control.safety import Fence, Obstacles, safe_velocity, stale_mask
 from herd_ros.errors import HerdInputError
 from herd_ros.model.model_file import check_agent_id, model_from_dict
@@ -66,6 +68,9 @@ HERD_MODEL_DEFAULTS = {
     'field_grid': [6, 6],
     'field_bounds': [-150.0, 150.0, -150.0, 150.0],
     'model_min_updates': 0,
+    'law': 'pairwise',
+    'interaction_radius': 60.0,
+    'profile_size': 6,
 }
 
 
@@ -163,6 +168,15 @@ class HerdModelPolicy:
         self.dt = float(p['dt'])
         if not self.dt > 0:
             raise ParameterError(f'dt must be positive, got {p["dt"]!r}')
+        self.law = str(p['law'])
+        if self.law not in ('pairwise', 'shared'):
+            raise ParameterError(f'law must be pairwise or shared (the estimator\'s), got '
+                                 f'{self.law!r}')
+        self.radius = float(p['interaction_radius'])
+        self.profile_size = int(p['profile_size'])
+        if self.law == 'shared' and not (self.radius > 0 and self.profile_size >= 1):
+            raise ParameterError('the shared law needs interaction_radius > 0 and '
+                                 'profile_size >= 1 (the estimator\'s values)')
         self._assignment(self.agents)   # validate now, not at the first message
 
     def _assignment(self, agents: list[str]) -> list[str]:
@@ -185,7 +199,7 @@ class HerdModelPolicy:
         # and re-seeding each time would repeat the same draw (a constant push, not noise)
         if not hasattr(self, 'rng'):
             self.rng = np.random.default_rng(self.seed)
-        self.follower = HerdFollower(model, self._assignment(list(model.agents)), self.robots,
+        self.follower = follower_for(model, self._assignment(list(model.agents)), self.robots,
                                      noise=self.noise, seed=self.rng)
         self.updates += 1
         self.status = f'model of {model.n_agents} animals, dt {model.dt:g} s ({self.source})'
@@ -212,8 +226,14 @@ class HerdModelPolicy:
                 raise HerdInputError(f'/herd/model/params: damping {theta[k, 0]:.3f} of '
                                      f'{self.agents[k]} makes the law unstable (|a| >= 1); '
                                      f'keeping the previous model')
-            self.set_model(model_from_parameter_matrix(theta, self.agents, self.dt, self.grid,
-                                                       self.noise_cov))
+            if self.law == 'shared':
+                model = shared_model_from_parameter_matrix(
+                    theta, self.agents, self.dt, self.grid, self.radius, self.profile_size,
+                    self.noise_cov)
+            else:
+                model = model_from_parameter_matrix(theta, self.agents, self.dt, self.grid,
+                                                    self.noise_cov)
+            self.set_model(model)
         except (HerdInputError, ParameterError) as exc:
             self.status = f'ignored parameters: {exc}'
             self.node.get_logger().warn(str(exc), throttle_duration_sec=10.0)

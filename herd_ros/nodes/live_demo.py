@@ -119,7 +119,8 @@ def demo_parameters(bag, out_dir, setup, rate) -> dict:
             'checkpoint_period_s': 3600.0}},
         'controller': {'ros__parameters': {
             **common, **field, 'robots': list(setup.robots), 'assignment': list(setup.agents),
-            'agents': list(setup.agents), 'dt': dt, 'mode': 'herd_model',
+            'agents': list(setup.agents), 'dt': dt, 'mode': 'herd_model', 'law': setup.law,
+            'interaction_radius': float(setup.interaction_radius),
             # the estimator's first five minutes of data (at least 30 steps) are too few
             # for a usable law
             'model_source': 'topic', 'model_min_updates': int(max(30, np.ceil(300.0 / dt))),
@@ -145,7 +146,7 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
-    from herd_ros.herd_setup import herd_setup_from_fixes
+    from herd_ros.herd_setup import LIVE_MIN_DT, herd_setup_from_fixes
     from herd_ros.io.bags import bag_info, read_fix_bag
     from herd_ros.nodes.controller import Controller
     from herd_ros.nodes.estimator import Estimator
@@ -158,12 +159,15 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     info = bag_info(bag)
-    setup = herd_setup_from_fixes(read_fix_bag(bag), dt=dt, rate=rate)
+    setup = herd_setup_from_fixes(read_fix_bag(bag), dt=dt, rate=rate, min_dt=LIVE_MIN_DT)
     rate = setup.rate
     agents, robots = setup.agents, setup.robots
     fence = np.asarray(setup.fence, dtype=float)
     log(f'chosen from the bag {Path(bag).name}:\n{setup.describe()}')
     params = demo_parameters(bag, out, setup, rate)
+    # a demo starts afresh: an estimator checkpoint left by an earlier run in this folder
+    # would be resumed (and its clock would be ahead of the replay)
+    (out / 'estimator_checkpoint.npz').unlink(missing_ok=True)
     params_file = out / 'demo_parameters.yaml'
     params_file.write_text(yaml.dump(params, Dumper=_NoAliasDumper, sort_keys=False))
     log(f'graph: replay({Path(bag).name}, rate {rate:g}) -> gps_ingest -> estimator -> '
@@ -203,7 +207,15 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
                     log(f'  {time.monotonic() - t0:5.0f} s: bag {100 * done:3.0f} %, '
                         f'{len(recorder.herd_times)} herd snapshots, {len(recorder.params)} '
                         f'model updates, robots {"moving" if recorder.robots_moved else "waiting"}')
-        time.sleep(1.0)   # let the last snapshots through the graph
+        # let the graph work off what the replay sent (it may lag behind a busy core): wait
+        # until no new snapshot has arrived for a second (at most 30 s)
+        last, quiet_since, deadline = -1, time.monotonic(), time.monotonic() + 30.0
+        while time.monotonic() < deadline and time.monotonic() - quiet_since < 1.0:
+            time.sleep(0.2)
+            with recorder.lock:
+                count = len(recorder.herd_times)
+            if count != last:
+                last, quiet_since = count, time.monotonic()
     except ExternalShutdownException:
         pass
     finally:
@@ -243,7 +255,9 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
              'herd_snapshots': int(len(times)), 'model_updates': int(len(thetas)),
              'robot_samples': int(active.sum()), 'model_file': str(model_path),
              'prediction_skill': skill}
-    return write_demo_report(out, cows, robots_traj, agents, param_times, thetas, fence, facts)
+    profile_size = int(params['estimator']['ros__parameters'].get('profile_size', 6))
+    return write_demo_report(out, cows, robots_traj, agents, param_times, thetas, fence, facts,
+                             law=setup.law, profile_size=profile_size)
 
 
 def _spin(executor):

@@ -25,26 +25,36 @@ from herd_ros.simulation.statistics import STATISTICS, herd_statistics  # noqa: 
 from herd_ros.trajectory import HerdTrajectory  # noqa: E402
 
 
-def params_figure(times, thetas, agents, path: Path):
-    """Damping per agent and θ2/θ1 per pair over (data) time."""
+def params_figure(times, thetas, agents, path: Path, law: str = 'pairwise',
+                  profile_size: int = 0):
+    """Damping per agent and, for the pairwise law, θ2/θ1 per pair (equilibrium distances);
+    for the shared law, the herd mean of each distance-profile coefficient; over data time."""
     t = np.asarray(times, dtype=float)
     th = np.asarray(thetas, dtype=float)  # (T, N, P)
     n = len(agents)
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
     rel = (t - t[0]) / 60.0
     for i, a in enumerate(agents):
-        axes[0].plot(rel, th[:, i, 0], label=a)
-        for k in range(n - 1):
-            t1, t2 = th[:, i, 1 + k], th[:, i, n + k]
-            with np.errstate(divide='ignore', invalid='ignore'):
-                deq = np.where(t1 > 0, t2 / t1, np.nan)
-            axes[1].plot(rel, deq, lw=0.8)
+        axes[0].plot(rel, th[:, i, 0], label=a if n <= 8 else None, lw=0.8)
+    if law == 'shared':
+        for b in range(profile_size):
+            axes[1].plot(rel, th[:, :, 1 + b].mean(axis=1), lw=0.9, label=f'c_{b + 1}')
+        axes[1].set_title('shared law: herd mean of the distance-profile coefficients')
+        axes[1].legend(fontsize=7)
+    else:
+        for i in range(n):
+            for k in range(n - 1):
+                t1, t2 = th[:, i, 1 + k], th[:, i, n + k]
+                with np.errstate(divide='ignore', invalid='ignore'):
+                    deq = np.where(t1 > 0, t2 / t1, np.nan)
+                axes[1].plot(rel, deq, lw=0.8)
+        axes[1].set_title('learned equilibrium distances θ2/θ1 (m), every pair')
+        axes[1].set_ylim(0, 100)
     axes[0].set_title('learned damping a_i')
     axes[0].set_xlabel('bag time (min)')
-    axes[0].legend(fontsize=7)
-    axes[1].set_title('learned equilibrium distances θ2/θ1 (m), every pair')
+    if n <= 8:
+        axes[0].legend(fontsize=7)
     axes[1].set_xlabel('bag time (min)')
-    axes[1].set_ylim(0, 100)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -80,7 +90,8 @@ def _finite_rows(traj: HerdTrajectory) -> HerdTrajectory:
 
 def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
                       assignment: list[str], param_times, param_thetas, fence=None,
-                      facts: dict | None = None) -> dict:
+                      facts: dict | None = None, law: str = 'pairwise',
+                      profile_size: int = 0) -> dict:
     """Figures and ``summary.json`` of the live demo; returns the summary."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -101,7 +112,8 @@ def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
             herd_rel[k] = float(abs(r - c) / max(abs(c), 1e-12))
     figures = []
     if len(param_times) >= 2:
-        params_figure(param_times, param_thetas, cows.agents, out / 'fig_params.png')
+        params_figure(param_times, param_thetas, cows.agents, out / 'fig_params.png', law,
+                      profile_size)
         figures.append('fig_params.png')
     if cows.n_steps >= 2 and robots.n_steps >= 2:
         trajectories_over_fence(cows, robots, fence, out / 'fig_trajectories.png')

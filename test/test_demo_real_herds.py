@@ -1,0 +1,121 @@
+"""`herd-ros demo --bag` on the shipped herds, real and synthetic, with no other flag (issue 10,
+acceptance 2 and 4).
+
+The demo runs as the installed console script (the whole ROS graph in one process, loopback
+DDS). Everything is checked from the files it writes, with code independent of the package:
+the one-step skill of the live estimator's published predictions over the second half of the
+bag is recomputed here from ``herd_poses.csv`` and ``herd_predictions.csv`` against constant
+velocity and stay-put; the robots must stay inside the fence the demo derived.
+"""
+import json
+import subprocess
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+from matplotlib.path import Path as PolyPath
+
+from conftest import REPO
+
+BAGS = ['baboons_1h', 'cows_3x1h']
+
+
+def pivot(csv_path):
+    """time -> {agent: (x, y)} from a trajectory CSV (missing agents simply absent)."""
+    df = pd.read_csv(csv_path)
+    out = {}
+    for t, g in df.groupby('time'):
+        out[round(float(t), 3)] = {a: (x, y) for a, x, y in zip(g['agent'], g['x'], g['y'])}
+    return out
+
+
+def skill_from_csvs(out_dir, dt):
+    """RMS (m) of model / constant velocity / stay-put one-step predictions over the second
+    half of the herd's time, on the agent-ticks where all three are defined."""
+    poses = pivot(out_dir / 'herd_poses.csv')
+    preds = pivot(out_dir / 'herd_predictions.csv')
+    times = sorted(poses)
+    half = times[0] + 0.5 * (times[-1] - times[0])
+    err = {'model': [], 'constant_velocity': [], 'stay_put': []}
+    for t, pred in preds.items():
+        if t < half:
+            continue
+        now = poses.get(t)
+        p1 = poses.get(round(t - dt, 3))
+        p2 = poses.get(round(t - 2 * dt, 3))
+        if now is None or p1 is None or p2 is None:
+            continue
+        for a, xy in pred.items():
+            if a in now and a in p1 and a in p2:
+                truth, last, before = (np.array(now[a]), np.array(p1[a]), np.array(p2[a]))
+                err['model'].append(np.array(xy) - truth)
+                err['constant_velocity'].append(2 * last - before - truth)
+                err['stay_put'].append(last - truth)
+    return {k: float(np.sqrt(np.mean(np.sum(np.square(v), axis=1)))) for k, v in err.items()}, \
+        len(err['model'])
+
+
+@pytest.fixture(scope='module', params=BAGS)
+def demo_run(request, tmp_path_factory):
+    import os
+    env = dict(os.environ)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['ROS_STATIC_PEERS'] = ''
+    env['ROS_DOMAIN_ID'] = str(90 + BAGS.index(request.param))
+    out = tmp_path_factory.mktemp(request.param)
+    exe = str(REPO / '.venv' / 'bin' / 'herd-ros')
+    if not os.path.exists(exe):
+        import sys
+        exe = str(os.path.join(os.path.dirname(sys.executable), 'herd-ros'))
+    t0 = time.monotonic()
+    proc = subprocess.run([exe, 'demo', '--bag', str(REPO / 'bags' / request.param),
+                           '--out', str(out)], env=env, capture_output=True, text=True,
+                          timeout=900)
+    wall = time.monotonic() - t0
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    print(f'{request.param}: demo took {wall:.0f} s')
+    return request.param, out, proc.stdout, wall
+
+
+@pytest.mark.slow
+def test_demo_chooses_everything_from_the_bag_and_writes_the_contract(demo_run):
+    name, out, stdout, wall = demo_run
+    assert 'chosen from the bag' in stdout and 'datum' in stdout and 'fence' in stdout
+    summary = json.loads((out / 'summary.json').read_text())
+    for key in ('datum', 'dt', 'rate', 'cows', 'robots'):
+        assert key in summary, key
+    lat, lon, _ = summary['datum']
+    assert -90 <= lat <= 90 and -180 <= lon <= 180
+    # the replay takes about two minutes whatever the bag's length
+    assert summary['rate'] * 90 < summary['setup']['duration_s'] < summary['rate'] * 150
+    assert len(summary['cows']) == len(summary['robots']) >= 3
+    for f in ('herd_poses.csv', 'herd_predictions.csv', 'fig_trajectories.png',
+              'fig_statistics.png', 'fig_params.png'):
+        assert (out / f).exists(), f
+
+
+@pytest.mark.slow
+def test_robots_stay_inside_the_fence_the_demo_derived(demo_run):
+    name, out, _, _ = demo_run
+    summary = json.loads((out / 'summary.json').read_text())
+    fence = np.asarray(summary['setup']['fence'], dtype=float)
+    robots = pd.read_csv(out / 'robots_fleet_poses.csv')
+    assert len(robots) > 100
+    poly = PolyPath(np.vstack([fence, fence[:1]]))
+    inside = poly.contains_points(robots[['x', 'y']].to_numpy(), radius=-0.5)  # 0.5 m slack
+    assert inside.all(), robots[~inside].head()
+    animals = pd.read_csv(out / 'herd_poses.csv')
+    assert poly.contains_points(animals[['x', 'y']].to_numpy()).mean() > 0.99
+
+
+@pytest.mark.slow
+def test_live_predictions_beat_constant_velocity_and_stay_put(demo_run):
+    """Acceptance 4: over the second half of the bag the estimator's published one-step
+    predictions are at least as good (RMS) as the better of constant velocity and stay-put."""
+    name, out, _, _ = demo_run
+    dt = json.loads((out / 'summary.json').read_text())['dt']
+    rms, n = skill_from_csvs(out, dt)
+    print(name, rms, n)
+    assert n > 1000
+    assert rms['model'] <= min(rms['constant_velocity'], rms['stay_put']), rms
