@@ -33,7 +33,7 @@ export PYTHONUNBUFFERED := 1
 .PHONY: help setup demo test bench clean
 
 help:
-	@echo "make demo   set up .venv and run the demo on the shipped cow bag (writes demo_out/)"
+	@echo "make demo   set up .venv and run the demo on the shipped real herd (19 baboons; writes demo_out/)"
 	@echo "make test   set up .venv and run the test suite"
 	@echo "make bench  set up .venv and run the benchmarks (medians, see README Performance)"
 	@echo "make setup  only create/update .venv (idempotent)"

@@ -335,3 +335,61 @@ def test_bad_parameters_stop_with_one_clear_line(ros_env, console_script, overri
         stop(proc)
     assert proc.returncode == 2
     assert message in err
+
+
+@pytest.mark.slow
+def test_node_on_collars_with_every_real_fault(ros, console_script, tmp_path):
+    """Issue 10, acceptance 1 for the node: three days of a realistic herd through collars with
+    every real-collar fault (duty cycle 30-250 s, silences of hours, late start, early end,
+    outlier bursts, duplicated stamps). The node publishes the offline path's snapshots —
+    so what test_real_collar_faults.py shows of those holds for the node — and no pose it
+    publishes sits on a burst or extrapolates a silent collar."""
+    from herd_ros.synthesis.collar_errors import CollarErrorModel, simulate_collar_fixes
+    from herd_ros.synthesis.cow_scenario import simulate_cow_herd
+    node, env = ros
+    truth = simulate_cow_herd(n_cows=3, duration_s=2 * 86400.0, dt=10.0, seed=5)
+    model = CollarErrorModel.real_collar(silence_rate=1.0 / 86400.0)
+    fixes = simulate_collar_fixes(truth, seed=5, model=model)
+    datum = fixes.attrs['datum']
+    agents = list(truth.agents)
+    var = fixes['cov_ee'].fillna(0.0).to_numpy()
+    rows = [(a, float(t), float(la), float(lo), float(al), int(st), int(ct), float(v))
+            for a, t, la, lo, al, st, ct, v in zip(
+                fixes['agent'], fixes['time'], fixes['lat'], fixes['lon'], fixes['alt'],
+                fixes['status'], fixes['position_covariance_type'], var)]
+    table = pd.DataFrame(rows, columns=['agent', 'time', 'lat', 'lon', 'alt', 'status',
+                                        'position_covariance_type', 'cov_ee'])
+    table['cov_nn'] = table['cov_ee']
+    table['cov_en'] = 0.0
+    offline = trajectory_from_fixes(table, datum=datum, trim=False, agents=agents)
+    fp = offline.meta['filter_params']
+    params = dict(dt=offline.meta['dt'], stale_after=fp.stale_after,
+                  reinit_after_gap=fp.reinit_after_gap, datum=list(datum),
+                  fix_queue_depth=1000)
+
+    collars = Collars(node, agents)
+    proc = start_node(console_script, env, tmp_path, agents, **params)
+    try:
+        collars.wait_for_node(proc)
+        collars.publish(rows)
+        sent = {a: sum(r[0] == a for r in rows) for a in agents}
+        collars.spin(30.0, lambda: all(collars.counted(a) == sent[a] for a in agents))
+        assert {a: collars.counted(a) for a in agents} == sent, 'fixes were lost'
+    finally:
+        rc = stop(proc)
+    assert rc == 0
+    index = {round(t, 6): k for k, t in enumerate(offline.times)}
+    compared = stale_nan = 0
+    for m in collars.poses:
+        k = index[round(stamp_to_seconds(m.header.stamp), 6)]
+        node_xy = np.array([[p.position.x, p.position.y] for p in m.poses])
+        np.testing.assert_allclose(node_xy, offline.positions[k], atol=1e-6, rtol=0,
+                                   equal_nan=True)
+        stale_nan += int(np.isnan(node_xy[offline.meta['stale'][k], 0]).sum())
+        compared += 1
+    assert compared > 0.9 * len(offline.times)
+    assert stale_nan == offline.meta['stale'][[index[round(stamp_to_seconds(m.header.stamp), 6)]
+                                               for m in collars.poses]].sum() > 0
+    burst = fixes['burst'].to_numpy()
+    assert burst.sum() > 5
+    assert not np.isin(offline.meta['fix_outcomes'][burst], ['accepted', 'reinitialised']).any()

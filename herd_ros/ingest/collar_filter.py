@@ -65,10 +65,14 @@ through the rest; counter ``reinitialised``) when:
   fixes (default 12, longer than an outlier burst), so a track that really is wrong (say it
   started on an outlier) is still left in the end. While such a chain is open, a fix
   consistent with it belongs to it even if the track's envelope, grown with the time since
-  its last accepted fix, would now admit it, as long as it is nearer to the chain's last
-  fix than to the track's prediction (nearest-neighbour association, Bar-Shalom & Fortmann
-  1988): a burst cannot make itself plausible by
-  lasting (the same holds for a reachable chain).
+  its last accepted fix, would now admit it, as long as it is nearer to the chain's fixes
+  than to the track's prediction (nearest-neighbour association, Bar-Shalom & Fortmann
+  1988): a burst cannot make itself plausible by lasting (the same holds for a reachable
+  chain). A fix continues a chain when it is within reach of *any* of the chain's fixes:
+  the fixes of a burst scatter about its wrong place (measured on generated bursts 0.8 km
+  off: consecutive fixes 140 m apart 40 s apart), and a chain tested against its last fix
+  only broke up, letting the rest of the burst start a new, reachable chain that was
+  adopted after three fixes.
 
 Any fix the track accepts closes the open candidates (the burst is over). Isolated outliers
 in random directions never form a chain.
@@ -446,7 +450,7 @@ class CollarFilter:
         # track's envelope and gate to grow
         for cand in reversed(self.candidates):
             if (self._consistent(cand, stamp, z, r)
-                    and np.hypot(*(z - cand.fixes[-1][1])) < np.hypot(*y)):
+                    and self._chain_distance(cand, z) < np.hypot(*y)):
                 return self._candidate_fix(stamp, z, r, 'speed' if cand.jump else 'gate',
                                            cand.jump, 'continues a chain of rejected fixes',
                                            d2=d2, chain=cand)
@@ -480,18 +484,25 @@ class CollarFilter:
         return FixResult(False, reason, detail, d2)
 
     def _reach_ratio(self, cand: _Candidate, stamp, z, r) -> float:
-        """Distance of the fix from the chain's last fix over the reach allowed in the time
-        between them (≤ 1: the fix continues the chain; inf if not after it)."""
-        t_prev, z_prev, r_prev = cand.fixes[-1]
-        tau = stamp - t_prev
-        if not tau > 0:
+        """Distance of the fix from the chain's fixes over the reach allowed in the time
+        between them, the smallest over the chain's fixes (≤ 1: the fix continues the chain;
+        inf if not after its last fix)."""
+        if not stamp > cand.fixes[-1][0]:
             return float('inf')
-        sigma = float(np.sqrt(np.linalg.eigvalsh(r + r_prev)[-1]))
-        allowed = float(self.params.reach(tau)) + self._gate_sigma * sigma
-        return float(np.hypot(*(z - z_prev))) / allowed
+        best = float('inf')
+        for t_prev, z_prev, r_prev in cand.fixes:
+            sigma = float(np.sqrt(np.linalg.eigvalsh(r + r_prev)[-1]))
+            allowed = float(self.params.reach(stamp - t_prev)) + self._gate_sigma * sigma
+            best = min(best, float(np.hypot(*(z - z_prev))) / allowed)
+        return best
+
+    @staticmethod
+    def _chain_distance(cand: _Candidate, z) -> float:
+        """Distance (m) of ``z`` from the nearest fix of the chain."""
+        return float(min(np.hypot(*(z - z_prev)) for _, z_prev, _ in cand.fixes))
 
     def _consistent(self, cand: _Candidate, stamp, z, r) -> bool:
-        """The fix continues ``cand``: within reach of its last fix."""
+        """The fix continues ``cand``: within reach of one of its fixes."""
         return self._reach_ratio(cand, stamp, z, r) <= 1.0
 
     def _attach(self, stamp, z, r, jump: bool, chain=None) -> _Candidate:
