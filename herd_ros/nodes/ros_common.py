@@ -104,8 +104,9 @@ def run_node(node_factory, args=None, executor=None) -> int:
     A :class:`ParameterError` at start-up is printed as one line and exits with status 2.
     The node's ``on_shutdown()`` (if any) runs before the context is torn down (the
     estimator writes its checkpoint there). A signal that lands inside rclpy's C++ message
-    conversion surfaces as a pybind11 ``RuntimeError`` instead of ``KeyboardInterrupt``;
-    after a signal that is a clean stop too.
+    conversion surfaces as a pybind11 ``RuntimeError`` instead of ``KeyboardInterrupt``, and
+    one that lands inside the executor's task handler as an ``AttributeError`` on a
+    destroyed guard condition; after a signal any such exception is a clean stop.
     """
     rclpy.init(args=args)
     signal.signal(signal.SIGINT, _on_signal)
@@ -124,7 +125,11 @@ def run_node(node_factory, args=None, executor=None) -> int:
             executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except RuntimeError:
+    except Exception:
+        # a signal shuts the context down under a running spin: rclpy then fails inside
+        # its own handler (a pybind11 RuntimeError from message conversion, or an
+        # AttributeError on a guard condition already destroyed); after a signal that is
+        # a clean stop
         if not _signalled:
             raise
     finally:
