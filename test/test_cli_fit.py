@@ -30,7 +30,8 @@ def known_data(tmp_path_factory):
 def test_fit_simulate_report_round_trip(known_data, tmp_path, capsys):
     model_path = tmp_path / 'model.yaml'
     status, out, _ = run_cli(['fit', known_data / 'data.csv', '-o', model_path, '--grid', '6x6',
-                              '--bounds=-75,75,-75,75', '--report', tmp_path / 'rep'], capsys)
+                              '--terms', 'full', '--ridge', '0', '--bounds=-75,75,-75,75',
+                              '--report', tmp_path / 'rep'], capsys)
     assert status == 0
     assert 'constant velocity' in out and 'agent_1' in out
     doc = yaml.safe_load(model_path.read_text())
@@ -100,8 +101,9 @@ BAD = {
 @pytest.mark.parametrize('case', sorted(BAD))
 def test_bad_input_is_one_clear_line(case, tmp_path, capsys):
     data = BAD[case](tmp_path / 'bad.csv')
+    # the full model forced: with selection a short file gets the damping-only model
     status, out, err = run_cli(['fit', data, '-o', tmp_path / 'm.yaml', '--grid', '2x2',
-                                '--min-visits', '1'], capsys)
+                                '--terms', 'full', '--min-visits', '1'], capsys)
     lines = [ln for ln in err.strip().splitlines() if ln.strip()]
     assert status == 2, (case, out, err)
     assert len(lines) == 1 and lines[0].startswith('herd-ros fit: error: '), (case, err)

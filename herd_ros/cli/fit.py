@@ -9,9 +9,13 @@ import numpy as np
 from herd_ros.cli.common import parse_floats, parse_grid, progress
 from herd_ros.cli.ingest import add_filter_arguments, filter_kwargs
 from herd_ros.data_sources import load_runs
-from herd_ros.estimation.herd_fit import DEFAULT_GRID, fit_herd, split_runs
+from herd_ros.errors import HerdInputError
+from herd_ros.estimation.herd_fit import aligned_positions, fit_structure, split_runs
+from herd_ros.estimation.model_selection import (FIELD_CELLS, FOLDS, PAIRWISE_MAX_AGENTS,
+                                                 RIDGES, TERMS, select_model)
 from herd_ros.estimation.validation import validate
-from herd_ros.model.model_file import save_model
+from herd_ros.model.model_file import save_model, selection_entry
+from herd_ros.model.shared_law import save_shared_model
 from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS
 
 HELP = 'fit the herd model to a trajectory CSV, GPS CSV or bag; write the model file'
@@ -20,13 +24,22 @@ HELP = 'fit the herd model to a trajectory CSV, GPS CSV or bag; write the model 
 def add_arguments(p):
     p.add_argument('data', help='trajectory CSV (time,agent,x,y[,run]), GPS CSV, GPX or bag')
     p.add_argument('-o', '--output', required=True, help='model file to write (ROS params YAML)')
-    p.add_argument('--grid', default='%dx%d' % DEFAULT_GRID, help='RBF grid NXxNY')
+    p.add_argument('--terms', default='auto', choices=('auto',) + TERMS + ('full',),
+                   help='model terms; auto = chosen by blocked cross-validation of the '
+                        'one-step error (full = damping+interactions+field, the paper)')
+    p.add_argument('--grid', default='auto',
+                   help='RBF field grid NXxNY; auto = chosen by cross-validation among '
+                        '%s cells over the visited region' % '/'.join(map(str, FIELD_CELLS)))
     p.add_argument('--bounds', help='grid bounds XMIN,XMAX,YMIN,YMAX in metres '
                                     '(default: the visited region)')
     p.add_argument('--min-visits', type=int, default=DEFAULT_MIN_VISITS,
                    help='samples of an agent a grid cell needs to keep its centre')
-    p.add_argument('--ridge', type=float, default=0.0,
-                   help='ridge λ on column-scaled parameters (0 = plain least squares)')
+    p.add_argument('--ridge', default='auto',
+                   help='ridge λ on column-scaled parameters (0 = plain least squares); '
+                        'auto = chosen by cross-validation among %s'
+                        % ', '.join(f'{r:g}' for r in RIDGES))
+    p.add_argument('--folds', type=int, default=FOLDS,
+                   help='contiguous blocks per run for the cross-validation')
     p.add_argument('--train-fraction', type=float, default=0.8,
                    help='first fraction of every run used for fitting; the rest is held out')
     p.add_argument('--se', choices=('sandwich', 'ols'), default='sandwich',
@@ -42,30 +55,70 @@ def add_arguments(p):
                         'method); also writes parameters over time to MODEL.params.csv')
     p.add_argument('--forgetting', type=float, default=1.0,
                    help='RLS forgetting factor λ in (0, 1] (with --online)')
-    p.add_argument('--law', choices=('pairwise', 'shared'), default='pairwise',
-                   help='interaction law (with --online): pairwise (the paper) or shared')
+    p.add_argument('--law', choices=('auto', 'pairwise', 'shared'), default='auto',
+                   help='interaction law: pairwise (the paper) or shared; auto = pairwise '
+                        'up to %d agents, shared above (with --online: pairwise)'
+                        % PAIRWISE_MAX_AGENTS)
 
 
 def _fmt(x, nd=3):
     return 'n/a' if x is None or not np.isfinite(x) else f'{x:.{nd}f}'
 
 
+def _candidates(args):
+    """(terms, grids, ridges) to cross-validate from the options (``None`` = all)."""
+    terms = None if args.terms == 'auto' else \
+        ['damping+interactions+field' if args.terms == 'full' else args.terms]
+    grids = None if args.grid == 'auto' else [parse_grid(args.grid)]
+    if args.ridge == 'auto':
+        ridges = RIDGES
+    else:
+        try:
+            ridges = (float(args.ridge),)
+        except ValueError:
+            raise HerdInputError(f'--ridge takes a number ≥ 0 or auto, got {args.ridge!r}') \
+                from None
+        if not (np.isfinite(ridges[0]) and ridges[0] >= 0):
+            raise HerdInputError(f'--ridge must be a finite number ≥ 0, got {args.ridge}')
+    if args.folds < 2:
+        raise HerdInputError(f'--folds must be at least 2, got {args.folds}')
+    return terms, grids, ridges
+
+
 def run(args) -> int:
     if args.online:
         from herd_ros.cli.fit_online import run_online
+        if args.law == 'auto':
+            args.law = 'pairwise'
+        if args.grid == 'auto':
+            args.grid = '8x8'
         return run_online(args)
-    grid = parse_grid(args.grid)
+    terms, grids, ridges = _candidates(args)
     bounds = parse_floats(args.bounds, 4, '--bounds') if args.bounds else None
     runs, datum = load_runs(args.data, dt=args.dt, smoother=args.smoother,
                            **filter_kwargs(args))
     train, test = split_runs(runs, args.train_fraction)
-    bar = progress(total=len(runs[0].agents), desc='fitting agents', unit='agent')
-    fit = fit_herd(train, grid=grid, bounds=bounds, min_visits=args.min_visits,
-                   ridge=args.ridge, se=args.se, datum=datum,
-                   progress=lambda a: bar.update(1))
+    agents = list(runs[0].agents)
+    bar = progress(total=len(agents), desc='cross-validating', unit='agent')
+    selection = select_model([aligned_positions(r, agents) for r in train], agents,
+                             train[0].dt, folds=args.folds, ridges=ridges, grids=grids,
+                             terms=terms, bounds=bounds, min_visits=args.min_visits,
+                             law=None if args.law == 'auto' else args.law,
+                             progress=lambda a: bar.update(1))
     bar.close()
-    save_model(fit.model, args.output)
+    bar = progress(total=len(agents), desc='fitting agents', unit='agent')
+    fit = fit_structure(train, selection.chosen, law=selection.law, profile=selection.profile,
+                        bounds=selection.bounds, min_visits=args.min_visits, se=args.se,
+                        datum=datum, progress=lambda a: bar.update(1))
+    bar.close()
+    chosen = selection.as_dict()
+    if hasattr(fit.model, 'laws'):
+        save_model(fit.model, args.output, selection=selection_entry(chosen))
+    else:
+        save_shared_model(fit.model, args.output, selection=selection_entry(chosen))
     summary = validate(fit, train, test, seed=args.seed)
+    summary['selection'] = chosen
+    _print_selection(selection, train[0].dt)
     _print_summary(fit, summary, args)
     if args.report:
         from herd_ros.report.fit_figures import write_fit_figures
@@ -81,24 +134,48 @@ def run(args) -> int:
     return 0
 
 
+def _print_selection(selection, dt, rows: int = 8):
+    """The cross-validation table: the best candidates, the chosen one and the baselines."""
+    table = sorted(selection.table, key=lambda r: r['mse'])
+    shown = table[:rows]
+    chosen = next(r for r in table if r['structure'] == selection.chosen)
+    if chosen not in shown:
+        shown.append(chosen)
+    law = f', interactions: {selection.law} law' if any(
+        r['structure'].interactions for r in table) else ''
+    print(f'model selection: blocked cross-validation on the training data ({selection.folds} '
+          f'blocks per run, {selection.samples} samples{law}); one-step RMS (m)')
+    print(f'  {"candidate":<44} {"params/agent":>12} {"CV RMS":>9}')
+    for r in shown:
+        mark = '  <- chosen (simplest within 1 SE of the best)' \
+            if r['structure'] == selection.chosen else ''
+        print(f'  {r["structure"].label():<44} {r["n_params"]:>12g} {r["rms"]:9.4f}{mark}')
+    for name, v in selection.baselines.items():
+        print(f'  {name.replace("_", " "):<44} {"":>12} {v:9.4f}')
+    if len(table) > len(shown):
+        print(f'  ({len(table) - len(shown)} more candidates in the report)')
+
+
 def _print_summary(fit, summary, args):
     ev = summary['evaluated_on']
     one = summary['one_step_rms']
     print(f'model: {args.output}  ({fit.model.n_agents} agents, dt {fit.model.dt:g} s, '
           f'{summary["agents"][fit.model.agents[0]]["samples"]} training samples per agent)')
-    print(f'one-step RMS (m) on {ev} data: model / constant velocity / stay-put; whiteness = '
-          f'fraction of lags inside the 90 % band, Ljung-Box Q')
+    print(f'one-step RMS (m) on {ev} data: model / constant velocity / stay-put / damping '
+          f'only; whiteness = fraction of lags inside the 90 % band, Ljung-Box Q')
     print(f'{"agent":>12} {"damping":>16} {"model":>8} {"const-v":>8} {"stay":>8} '
-          f'{"white v":>8} {"white w":>8} {"LB v":>10} {"LB w":>10}')
+          f'{"damp":>8} {"white v":>8} {"white w":>8} {"LB v":>10} {"LB w":>10}')
     for a in fit.model.agents:
         s = summary['agents'][a]
         wv, wr = s['whiteness_velocity'], s['whiteness_residual']
         print(f'{a:>12} {s["damping"]:8.4f}±{_fmt(s["damping_se"], 4):<7} '
               f'{one["model"][a]:8.3f} {one["constant_velocity"][a]:8.3f} '
-              f'{one["stay_put"][a]:8.3f} {wv["inside_90"]:8.0%} {wr["inside_90"]:8.0%} '
+              f'{one["stay_put"][a]:8.3f} {one["damping_only"][a]:8.3f} '
+              f'{wv["inside_90"]:8.0%} {wr["inside_90"]:8.0%} '
               f'{wv["ljung_box"]:10.1f} {wr["ljung_box"]:10.1f}')
     print(f'{"herd":>12} {"":16} {one["model"]["herd"]:8.3f} '
-          f'{one["constant_velocity"]["herd"]:8.3f} {one["stay_put"]["herd"]:8.3f}')
+          f'{one["constant_velocity"]["herd"]:8.3f} {one["stay_put"]["herd"]:8.3f} '
+          f'{one["damping_only"]["herd"]:8.3f}')
     weak = [k for k, c in summary['interaction'].items() if not c['identifiable']]
     if weak:
         print(f'note: {len(weak)} of {len(summary["interaction"])} pairwise interactions are '

@@ -121,3 +121,80 @@ def fit_herd(runs: list[HerdTrajectory], grid: tuple[int, int] = DEFAULT_GRID,
     model = HerdModel(agents=agents, dt=dt, laws=laws, frame_id=frame_id, datum=datum)
     return HerdFit(model=model, fits=fits, grid=field_grid,
                    meta={'min_visits': min_visits, 'ridge': ridge, 'se': se})
+
+
+def _null_basis(bounds) -> RbfBasis:
+    """One centre in the middle of ``bounds``, as wide as they are: the field of a model
+    without one (its weights are zero)."""
+    xmin, xmax, ymin, ymax = bounds
+    return RbfBasis(np.array([[0.5 * (xmin + xmax), 0.5 * (ymin + ymax)]]),
+                    np.array([max(xmax - xmin, ymax - ymin, 1.0)]))
+
+
+def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
+                  profile=None, bounds=None, min_visits: int = DEFAULT_MIN_VISITS,
+                  se: str = 'sandwich', frame_id: str = 'map', datum=None, progress=None):
+    """Batch least squares of a selected structure (:mod:`model_selection`): the damping
+    always, the interactions (pairwise law, or the shared profile when ``law='shared'``)
+    and the field on ``structure.grid`` over ``bounds`` only if selected, ridge
+    ``structure.ridge``. Terms left out are zero in the model (and in its ``theta_se``).
+
+    Returns a :class:`HerdFit` whose model is a :class:`HerdModel` (pairwise, or no
+    interactions) or a :class:`~herd_ros.model.shared_law.SharedLawModel`."""
+    from herd_ros.estimation.model_selection import structured_regression
+    from herd_ros.model.shared_law import SharedLawModel
+
+    agents, dt = check_runs(runs)
+    positions = [aligned_positions(r, agents) for r in runs]
+    n = len(agents)
+    if bounds is None:
+        pts = np.concatenate([p.reshape(-1, 2) for p in positions])
+        bounds = FieldGrid.over(pts[np.isfinite(pts).all(-1)], 1, 1).bounds
+    field_grid = (FieldGrid(structure.grid[0], structure.grid[1], tuple(bounds))
+                  if structure.grid is not None else None)
+    shared = structure.interactions and law == 'shared'
+    laws, fits, bases, out = {}, {}, [], []
+    for i, a in enumerate(agents):
+        if field_grid is not None:
+            visited = np.concatenate([p[:-2, i, :] for p in positions if p.shape[0] >= 3])
+            basis = RbfBasis.from_grid(field_grid, visited[np.isfinite(visited).all(-1)],
+                                       min_visits)
+        else:
+            basis = RbfBasis(np.zeros((0, 2)), np.zeros(0))
+        reg = structured_regression(positions, i, agents, dt, structure, law, profile, basis)
+        fit = fit_agent(reg, ridge=structure.ridge, se=se)
+        pa, K = reg.A_x.shape[1], basis.size
+        th, sd = fit.theta, fit.theta_se
+        if K == 0:
+            # no field: one centre with zero weight (a ROS parameter array cannot be empty)
+            basis, K = _null_basis(bounds), 1
+            th, sd = np.concatenate([th, [0.0, 0.0]]), np.concatenate([sd, [0.0, 0.0]])
+        fits[a] = fit
+        bases.append(basis)
+        out.append((th, sd, pa, K))
+        if not shared:
+            t1, t2, s1, s2 = (np.zeros(n - 1),) * 4
+            if structure.interactions:
+                t1, t2 = th[1:n], th[n:2 * n - 1]
+                s1, s2 = sd[1:n], sd[n:2 * n - 1]
+            laws[a] = AgentLaw(damping=th[0], neighbors=reg.neighbors, theta1=t1, theta2=t2,
+                               basis=basis, field_u=th[pa:pa + K], field_v=th[pa + K:],
+                               noise_cov=fit.noise_cov,
+                               theta_se=np.concatenate([[sd[0]], s1, s2, sd[pa:]]))
+        if progress is not None:
+            progress(a)
+    meta = {'min_visits': min_visits, 'ridge': structure.ridge, 'se': se,
+            'terms': structure.terms}
+    if shared:
+        model = SharedLawModel(
+            agents=agents, dt=dt, profile=profile,
+            damping=[o[0][0] for o in out], profile_coef=[o[0][1:o[2]] for o in out],
+            bases=bases, field_u=[o[0][o[2]:o[2] + o[3]] for o in out],
+            field_v=[o[0][o[2] + o[3]:] for o in out],
+            noise_cov=[fits[a].noise_cov for a in agents],
+            theta_se=[o[1] for o in out], frame_id=frame_id, datum=datum)
+    else:
+        model = HerdModel(agents=agents, dt=dt, laws=laws, frame_id=frame_id, datum=datum)
+    return HerdFit(model=model, fits=fits,
+                   grid=field_grid if field_grid is not None else FieldGrid(1, 1, tuple(bounds)),
+                   meta=meta)

@@ -1,7 +1,8 @@
 """The paper's validation of a fitted herd model, as numbers (the figures draw from these).
 
-* one-step and k-step RMS of the model next to constant velocity and stay-put, on held-out
-  data (a time split);
+* one-step and k-step RMS of the model next to constant velocity and stay-put (and, one
+  step, the damping-only model fitted on the same training data), on held-out data (a
+  time split);
 * whiteness of the velocity and of the residual w_i (autocorrelation bands, Ljung–Box);
 * interaction force curves F_ij(d) = θ1_ij − θ2_ij/d with 95 % confidence bands over the
   observed distances, and equilibrium distances with their intervals;
@@ -14,7 +15,7 @@ import numpy as np
 from herd_ros.estimation.herd_fit import HerdFit, aligned_positions
 from herd_ros.estimation.whiteness import whiteness
 from herd_ros.simulation.herd_simulator import simulate_from
-from herd_ros.simulation.prediction import k_step_rms, one_step_rms
+from herd_ros.simulation.prediction import damping_only_fit, k_step_rms, one_step_rms
 from herd_ros.simulation.statistics import herd_statistics, relative_differences
 from herd_ros.trajectory import HerdTrajectory
 
@@ -59,6 +60,40 @@ def force_curves(fit: HerdFit, runs: list[HerdTrajectory], n_points: int = 100) 
     return out
 
 
+def damping_only_rms(train, runs, agents) -> dict:
+    """One-step RMS (m) on ``runs`` of the damping-only model p̂ = p + a (p − p_prev), one
+    a per agent fitted on ``train`` (:func:`damping_only_fit`): {agent: RMS, 'herd': RMS}."""
+    a = damping_only_fit(np.concatenate([aligned_positions(r, agents) for r in train]))
+    errs = []
+    for r in runs:
+        p = aligned_positions(r, agents)
+        if len(p) >= 3:
+            errs.append(p[1:-1] + a[None, :, None] * (p[1:-1] - p[:-2]) - p[2:])
+    e = np.concatenate(errs)
+    sq = (e ** 2).sum(-1)
+    with np.errstate(invalid='ignore'):
+        out = {ag: float(np.sqrt(np.nanmean(sq[:, i]))) for i, ag in enumerate(agents)}
+        out['herd'] = float(np.sqrt(np.nanmean(sq)))
+    return out
+
+
+def agent_terms(model, agent: str):
+    """(damping, damping SE or None, field basis, field_u, field_v) of one agent of a
+    pairwise (:class:`HerdModel`) or shared-law model."""
+    i = model.agents.index(agent)
+    if hasattr(model, 'laws'):
+        law = model.laws[agent]
+        se = float(law.theta_se[0]) if law.theta_se is not None else None
+        return law.damping, se, law.basis, law.field_u, law.field_v
+    se = float(model.theta_se[i][0]) if model.theta_se is not None else None
+    return model.damping[i], se, model.bases[i], model.field_u[i], model.field_v[i]
+
+
+def has_pairwise_interactions(model) -> bool:
+    """A pairwise model with any non-zero pair term (a selected fit may have none)."""
+    return hasattr(model, 'laws') and bool(np.any(model.theta1) or np.any(model.theta2))
+
+
 def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajectory],
              seed=0, ks=(1, 5, 10, 30)) -> dict:
     """Every number of the fit report (see the module docstring)."""
@@ -68,6 +103,8 @@ def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajector
     summary = {'evaluated_on': 'held-out' if evaluate_on is held_out else 'training',
                'agents': {}}
     summary['one_step_rms'] = one_step_rms(model, evaluate_on)
+    summary['one_step_rms']['damping_only'] = damping_only_rms(train, evaluate_on,
+                                                               model.agents)
     summary['k_step_rms'] = {m: {str(k): v for k, v in d.items()}
                              for m, d in k_step_rms(model, evaluate_on, ks).items()}
     for a in model.agents:
@@ -78,18 +115,19 @@ def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajector
             vel.append(np.diff(p[:, i], axis=0) / model.dt)
             res.append(model.residuals(p)[:, i])
         wv, wr = whiteness(np.concatenate(vel)), whiteness(np.concatenate(res))
-        law = model.laws[a]
+        damping, damping_se, basis, _, _ = agent_terms(model, a)
         summary['agents'][a] = {
-            'damping': float(law.damping),
-            'damping_se': float(law.theta_se[0]) if law.theta_se is not None else None,
-            'field_centres': int(law.basis.size),
+            'damping': float(damping),
+            'damping_se': damping_se,
+            'field_centres': int(basis.size),
             'samples': int(fit.fits[a].n_samples) if a in fit.fits else None,
             'condition': float(fit.fits[a].condition) if a in fit.fits else None,
-            'noise_cov': law.noise_cov.ravel().tolist(),
+            'noise_cov': model.noise_cov[model.agents.index(a)].ravel().tolist(),
             'whiteness_velocity': wv.as_dict(), 'whiteness_residual': wr.as_dict(),
             'acf_velocity': wv.acf.tolist(), 'acf_residual': wr.acf.tolist(),
         }
-    summary['interaction'] = force_curves(fit, train)
+    summary['interaction'] = (force_curves(fit, train) if has_pairwise_interactions(model)
+                              else {})
     sims = [simulate_from(model, r, seed=seed + k) for k, r in enumerate(train)]
     real_stats, sim_stats = herd_statistics(train), herd_statistics(sims)
     summary['statistics'] = {'real': real_stats, 'simulated': sim_stats,

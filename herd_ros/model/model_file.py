@@ -161,9 +161,40 @@ def write_atomic(path, text: str) -> Path:
     return Path(path)
 
 
-def save_model(model: HerdModel, path) -> Path:
-    """Write the model file of DESIGN.md."""
-    return write_atomic(path, dump_parameters(model_to_dict(model)))
+def save_model(model: HerdModel, path, selection: dict | None = None) -> Path:
+    """Write the model file of DESIGN.md (with ``selection``: the ``model.selection``
+    mapping of a selected fit, see :func:`selection_entry`)."""
+    body = model_to_dict(model)
+    if selection:
+        body['selection'] = selection
+    return write_atomic(path, dump_parameters(body))
+
+
+def selection_entry(selection: dict) -> dict:
+    """The ``model.selection`` mapping of a model file — how ``herd-ros fit`` chose the
+    structure (scalars and homogeneous arrays only, so the file stays a ROS parameters
+    file)::
+
+        selection:
+          method: blocked cross-validation (10 blocks per run) of the one-step error, ...
+          terms: damping+interactions+field   # the terms kept; left-out terms are zero
+          interaction_law: pairwise           # or shared, or none
+          grid: [4.0, 4.0]                    # field grid (absent without a field; the
+                                              # model then has one centre of weight 0)
+          ridge: 0.0
+          cv_rms: 0.0707                      # one-step RMS (m) of the chosen structure
+          cv_rms_constant_velocity: 0.0720
+          cv_rms_stay_put: 0.4224
+    """
+    cv = selection['cv_rms']
+    out = {'method': selection['method'], 'terms': selection['terms'],
+           'interaction_law': selection['interaction_law'] or 'none'}
+    if selection['grid']:
+        out['grid'] = [float(g) for g in selection['grid']]
+    out.update({'ridge': float(selection['ridge']), 'cv_rms': float(cv['selected']),
+                'cv_rms_constant_velocity': float(cv['constant_velocity']),
+                'cv_rms_stay_put': float(cv['stay_put'])})
+    return out
 
 
 def load_model_body(path) -> dict:

@@ -328,9 +328,13 @@ def shared_model_from_dict(body: dict, source: str = 'model') -> SharedLawModel:
                           frame_id=str(body.get('frame_id', 'map')), datum=body.get('datum'))
 
 
-def save_shared_model(model: SharedLawModel, path):
-    """Write the ``schwager2007_shared`` model file atomically."""
-    return write_atomic(path, dump_parameters(shared_model_to_dict(model)))
+def save_shared_model(model: SharedLawModel, path, selection: dict | None = None):
+    """Write the ``schwager2007_shared`` model file atomically (``selection``: see
+    :func:`herd_ros.model.model_file.selection_entry`)."""
+    body = shared_model_to_dict(model)
+    if selection:
+        body['selection'] = selection
+    return write_atomic(path, dump_parameters(body))
 
 
 def load_shared_model(path) -> SharedLawModel:

@@ -10,6 +10,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from herd_ros.estimation.herd_fit import HerdFit, aligned_positions  # noqa: E402
+from herd_ros.estimation.validation import agent_terms  # noqa: E402
 from herd_ros.simulation.statistics import STATISTICS  # noqa: E402
 
 
@@ -50,14 +51,14 @@ def field_figure(fit: HerdFit, runs, path: Path, n_arrows: int = 20):
     gx, gy = np.meshgrid(np.linspace(xmin, xmax, n_arrows), np.linspace(ymin, ymax, n_arrows))
     pts = np.column_stack([gx.ravel(), gy.ravel()])
     for i, (ax, a) in enumerate(zip(axes.flat, model.agents)):
-        law = model.laws[a]
-        phi = law.basis.features(pts)
-        g = np.column_stack([phi @ law.field_u, phi @ law.field_v])
+        _, _, basis, field_u, field_v = agent_terms(model, a)
+        phi = basis.features(pts)
+        g = np.column_stack([phi @ field_u, phi @ field_v])
         for r in runs:
             p = aligned_positions(r, model.agents)[:, i]
             ax.plot(p[:, 0], p[:, 1], color='0.6', lw=0.4)
         ax.quiver(pts[:, 0], pts[:, 1], g[:, 0], g[:, 1], color='C3', angles='xy')
-        ax.plot(law.basis.centers[:, 0], law.basis.centers[:, 1], 'k+', ms=6)
+        ax.plot(basis.centers[:, 0], basis.centers[:, 1], 'k+', ms=6)
         ax.set_title(f'{a}: field g (arrows), centres (+), path', fontsize=8)
         ax.set_aspect('equal')
         ax.tick_params(labelsize=7)
@@ -135,15 +136,21 @@ def statistics_figure(real: dict, other: dict, path: Path, labels=('real', 'simu
 
 
 def write_fit_figures(fit: HerdFit, summary: dict, train_runs, out_dir) -> list[Path]:
-    """All five figures of the fit report into ``out_dir``; returns their paths."""
+    """The figures of the fit report into ``out_dir`` (the interaction figure only for a
+    model with pairwise interactions); returns their paths."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = [out / 'fig2_interaction.png', out / 'fig3_field.png', out / 'fig4_whiteness.png',
-             out / 'fig5_trajectories.png', out / 'fig6_statistics.png']
-    interaction_figure(summary, paths[0])
-    field_figure(fit, train_runs, paths[1])
-    whiteness_figure(summary, paths[2])
-    trajectories_figure(train_runs, summary['_simulated_runs'], fit.model.agents, paths[3])
+    paths = []
+    if summary['interaction']:           # pairwise interactions in the model
+        paths.append(out / 'fig2_interaction.png')
+        interaction_figure(summary, paths[-1])
+    paths.append(out / 'fig3_field.png')
+    field_figure(fit, train_runs, paths[-1])
+    paths.append(out / 'fig4_whiteness.png')
+    whiteness_figure(summary, paths[-1])
+    paths.append(out / 'fig5_trajectories.png')
+    trajectories_figure(train_runs, summary['_simulated_runs'], fit.model.agents, paths[-1])
     st = summary['statistics']
-    statistics_figure(st['real'], st['simulated'], paths[4])
+    paths.append(out / 'fig6_statistics.png')
+    statistics_figure(st['real'], st['simulated'], paths[-1])
     return paths
