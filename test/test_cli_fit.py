@@ -139,3 +139,59 @@ def test_irregular_planar_fixes_go_through_the_ingest(tmp_path, capsys):
     status, out, err = run_cli(['fit', data, '-o', tmp_path / 'm.yaml', '--grid', '2x2',
                                 '--min-visits', '1'], capsys)
     assert status == 0, err
+
+
+def _damping_only_model(tmp_path, a=(0.8, 0.5), q=(0.04, 0.09)):
+    """A hand-made damping-only model file (field weight 0, no pair terms)."""
+    from herd_ros.model.herd_model import AgentLaw, HerdModel
+    from herd_ros.model.rbf_field import RbfBasis
+    laws = {}
+    for name, other, ak, qk in (('a', 'b', a[0], q[0]), ('b', 'a', a[1], q[1])):
+        laws[name] = AgentLaw(damping=ak, neighbors=[other], theta1=[0.0], theta2=[0.0],
+                              basis=RbfBasis([[0.0, 0.0]], [10.0]), field_u=[0.0],
+                              field_v=[0.0], noise_cov=np.diag([qk, qk]))
+    from herd_ros.model.model_file import save_model
+    path = tmp_path / 'hand.yaml'
+    save_model(HerdModel(agents=['a', 'b'], dt=2.0, laws=laws), path)
+    return path
+
+
+@pytest.mark.parametrize('k', [1, 2])
+def test_predict_writes_hand_computed_positions_and_covariances(tmp_path, capsys, k):
+    """p̂^{s+1} = p^s + a (p^s − p^{s−1}); p̂^{s+2} = p^s + (a + a²)(p^s − p^{s−1}); the
+    covariance Δt² Q (k = 1) and Δt² ((1 + a)² + 1) Q (k = 2) at the first prediction,
+    where no residual has been seen yet (noise level 1)."""
+    model = _damping_only_model(tmp_path)
+    rng = np.random.default_rng(1)
+    T = 12
+    pos = np.cumsum(rng.normal(size=(T, 2, 2)), axis=0)
+    rows = [f'{2.0 * t},{ag},{pos[t, i, 0]},{pos[t, i, 1]}\n'
+            for t in range(T) for i, ag in enumerate('ab')]
+    data = _write(tmp_path / 'd.csv', rows)
+    status, out, err = run_cli(['predict', model, data, '-o', tmp_path / 'p.csv',
+                                '--steps', k], capsys)
+    assert status == 0, err
+    import pandas as pd
+    pred = pd.read_csv(tmp_path / 'p.csv')
+    assert list(pred.columns) == ['time', 'agent', 'x', 'y', 'cov_xx', 'cov_xy', 'cov_yy']
+    assert len(pred) == 2 * (T - k - 1)
+    for i, (ag, a, q) in enumerate((('a', 0.8, 0.04), ('b', 0.5, 0.09))):
+        mine = pred[pred.agent == ag].sort_values('time')
+        gain = a if k == 1 else a + a * a
+        for t_row, row in zip(range(k + 1, T), mine.itertuples()):
+            s = t_row - k
+            expected = pos[s, i] + gain * (pos[s, i] - pos[s - 1, i])
+            assert row.time == 2.0 * t_row
+            np.testing.assert_allclose([row.x, row.y], expected, atol=1e-5)
+        first = mine.iloc[0]
+        var = 4.0 * q * (1.0 if k == 1 else (1 + a) ** 2 + 1)
+        assert first.cov_xx == pytest.approx(var, rel=1e-5) and first.cov_xy == 0.0
+    assert 'inside the 90 % prediction ellipse' in out
+
+
+def test_predict_refuses_data_without_the_models_agents(tmp_path, capsys):
+    model = _damping_only_model(tmp_path)
+    data = _write(tmp_path / 'd.csv', [f'{t},a,{t},0\n' for t in range(6)]
+                  + [f'{t},c,0,{t}\n' for t in range(6)])
+    status, _, err = run_cli(['predict', model, data, '-o', tmp_path / 'p.csv'], capsys)
+    assert status == 2 and 'no data for agent(s) b' in err

@@ -20,6 +20,7 @@ from herd_ros.errors import HerdInputError
 # verb name -> module name under herd_ros.cli
 VERBS = {
     'fit': 'fit',
+    'predict': 'predict',
     'simulate': 'simulate',
     'report': 'report',
     'synth': 'synth',

@@ -6,7 +6,7 @@ import numpy as np
 from herd_ros.cli.common import progress
 from herd_ros.data_sources import load_runs
 from herd_ros.errors import HerdInputError
-from herd_ros.model.model_file import load_model
+from herd_ros.model.any_model import load_any_model
 from herd_ros.simulation.herd_simulator import simulate
 from herd_ros.simulation.statistics import herd_statistics
 from herd_ros.trajectory import write_trajectory_csv
@@ -26,9 +26,13 @@ def add_arguments(p):
 
 def default_initial_positions(model, seed=0):
     """Agents on a ring of radius ~ the median equilibrium distance about the field centres."""
-    centres = np.concatenate([model.laws[a].basis.centers for a in model.agents])
+    if hasattr(model, 'laws'):
+        centres = np.concatenate([model.laws[a].basis.centers for a in model.agents])
+        deq = np.concatenate([model.laws[a].equilibrium_distance() for a in model.agents])
+    else:                                    # shared law: a quarter of its radius
+        centres = np.concatenate([b.centers for b in model.bases])
+        deq = np.array([model.profile.radius / 4.0])
     c = centres.mean(axis=0)
-    deq = np.concatenate([model.laws[a].equilibrium_distance() for a in model.agents])
     deq = deq[np.isfinite(deq) & (deq > 0)]
     radius = float(np.clip(np.median(deq) if len(deq) else 10.0, 2.0, 100.0))
     n = model.n_agents
@@ -39,7 +43,7 @@ def default_initial_positions(model, seed=0):
 def run(args) -> int:
     if args.steps < 2:
         raise HerdInputError(f'--steps must be at least 2, got {args.steps}')
-    model = load_model(args.model)
+    model = load_any_model(args.model)
     u0 = None
     if args.initial:
         runs, _ = load_runs(args.initial)

@@ -142,6 +142,7 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
     Returns a :class:`HerdFit` whose model is a :class:`HerdModel` (pairwise, or no
     interactions) or a :class:`~herd_ros.model.shared_law.SharedLawModel`."""
     from herd_ros.estimation.model_selection import structured_regression
+    from herd_ros.simulation.prediction import calibrate_prediction_scale
     from herd_ros.model.shared_law import SharedLawModel
 
     agents, dt = check_runs(runs)
@@ -195,6 +196,8 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
             theta_se=[o[1] for o in out], frame_id=frame_id, datum=datum)
     else:
         model = HerdModel(agents=agents, dt=dt, laws=laws, frame_id=frame_id, datum=datum)
+    model.meta['prediction_scale'] = calibrate_prediction_scale(model, positions)
     return HerdFit(model=model, fits=fits,
                    grid=field_grid if field_grid is not None else FieldGrid(1, 1, tuple(bounds)),
                    meta=meta)
+

@@ -89,7 +89,32 @@ def model_to_dict(model: HerdModel) -> dict:
         if law.theta_se is not None:
             entry['theta_se'] = float_list(law.theta_se)
         body[a] = entry
+    add_prediction_scale(body, model)
     return body
+
+
+def add_prediction_scale(body: dict, model) -> None:
+    """``prediction_scale`` (one per agent, agents order): the factor on Δt²Q_i that makes
+    the 90 % prediction ellipse of :func:`~herd_ros.simulation.prediction.prediction_covariance`
+    hold 90 % of the training residuals (written by ``herd-ros fit``; 1 if absent)."""
+    scale = model.meta.get('prediction_scale') if model.meta else None
+    if scale is not None:
+        body['prediction_scale'] = float_list(scale)
+
+
+def read_prediction_scale(body: dict, n_agents: int, source: str) -> dict:
+    """The ``meta`` entry for :func:`add_prediction_scale`'s key, checked."""
+    if 'prediction_scale' not in body:
+        return {}
+    try:
+        scale = np.asarray(body['prediction_scale'], dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise HerdInputError(f'{source}: model.prediction_scale is not a list of numbers') \
+            from None
+    if len(scale) != n_agents or not (np.isfinite(scale).all() and (scale > 0).all()):
+        raise HerdInputError(f'{source}: model.prediction_scale needs one positive number per '
+                             f'agent ({n_agents})')
+    return {'prediction_scale': scale}
 
 
 def model_from_dict(body: dict, source: str = 'model') -> HerdModel:
@@ -126,7 +151,8 @@ def model_from_dict(body: dict, source: str = 'model') -> HerdModel:
                 raise HerdInputError(f'{source}: model.{a}: {exc}') from None
             raise HerdInputError(f'{source}: model.{a}: malformed numbers ({exc})') from None
     return HerdModel(agents=agents, dt=float(need(body, 'dt', 'model')), laws=laws,
-                     frame_id=str(body.get('frame_id', 'map')), datum=body.get('datum'))
+                     frame_id=str(body.get('frame_id', 'map')), datum=body.get('datum'),
+                     meta=read_prediction_scale(body, len(agents), source))
 
 
 def dump_parameters(model_body: dict, node: str = '/**') -> str:

@@ -52,8 +52,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from herd_ros.errors import HerdInputError
-from herd_ros.model.model_file import (check_agent_id, dump_parameters, float_list,
-                                       load_model_body, write_atomic)
+from herd_ros.model.model_file import (add_prediction_scale, check_agent_id, dump_parameters,
+                                       float_list, load_model_body, read_prediction_scale,
+                                       write_atomic)
 from herd_ros.model.rbf_field import RbfBasis
 
 KIND = 'schwager2007_shared'
@@ -282,6 +283,7 @@ def shared_model_to_dict(model: SharedLawModel) -> dict:
         if model.theta_se is not None:
             entry['theta_se'] = float_list(model.theta_se[i])
         body[a] = entry
+    add_prediction_scale(body, model)
     return body
 
 
@@ -325,7 +327,8 @@ def shared_model_from_dict(body: dict, source: str = 'model') -> SharedLawModel:
                           damping=damping, profile_coef=np.array(coef), bases=bases,
                           field_u=fu, field_v=fv, noise_cov=np.array(q),
                           theta_se=None if any(s is None for s in se) else se,
-                          frame_id=str(body.get('frame_id', 'map')), datum=body.get('datum'))
+                          frame_id=str(body.get('frame_id', 'map')), datum=body.get('datum'),
+                          meta=read_prediction_scale(body, len(agents), source))
 
 
 def save_shared_model(model: SharedLawModel, path, selection: dict | None = None):
