@@ -38,6 +38,9 @@ def add_arguments(p):
                    help='ridge λ on column-scaled parameters (0 = plain least squares); '
                         'auto = chosen by cross-validation among %s'
                         % ', '.join(f'{r:g}' for r in RIDGES))
+    p.add_argument('--loss', choices=('l2', 'robust'), default='l2',
+                   help='l2: least squares; robust: outlier-robust IRLS (Mahalanobis-weighted, '
+                        'bounded influence), for data with bursts of bad positions')
     p.add_argument('--folds', type=int, default=FOLDS,
                    help='contiguous blocks per run for the cross-validation')
     p.add_argument('--train-fraction', type=float, default=0.8,
@@ -109,9 +112,11 @@ def run(args) -> int:
     bar = progress(total=len(agents), desc='fitting agents', unit='agent')
     fit = fit_structure(train, selection.chosen, law=selection.law, profile=selection.profile,
                         bounds=selection.bounds, min_visits=args.min_visits, se=args.se,
-                        datum=datum, progress=lambda a: bar.update(1))
+                        datum=datum, progress=lambda a: bar.update(1),
+                        robust=args.loss == 'robust')
     bar.close()
     chosen = selection.as_dict()
+    chosen['loss'] = args.loss
     if hasattr(fit.model, 'laws'):
         save_model(fit.model, args.output, selection=selection_entry(chosen))
     else:

@@ -26,7 +26,7 @@ def run_online(args) -> int:
                    unit='step')
     result = online_fit(runs, law=args.law, grid=grid, bounds=bounds,
                         forgetting=args.forgetting, min_visits=args.min_visits,
-                        progress=bar.update)
+                        progress=bar.update, robust=getattr(args, 'loss', 'l2') == 'robust')
     bar.close()
     est = result.estimator
     est.save_model(args.output, datum=datum)

@@ -133,8 +133,10 @@ def _null_basis(bounds) -> RbfBasis:
 
 def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
                   profile=None, bounds=None, min_visits: int = DEFAULT_MIN_VISITS,
-                  se: str = 'sandwich', frame_id: str = 'map', datum=None, progress=None):
-    """Batch least squares of a selected structure (:mod:`model_selection`): the damping
+                  se: str = 'sandwich', frame_id: str = 'map', datum=None, progress=None,
+                  robust: bool = False):
+    """Batch least squares (``robust``: the outlier-robust IRLS of
+    :mod:`herd_ros.estimation.robust`) of a selected structure (:mod:`model_selection`): the damping
     always, the interactions (pairwise law, or the shared profile when ``law='shared'``)
     and the field on ``structure.grid`` over ``bounds`` only if selected, ridge
     ``structure.ridge``. Terms left out are zero in the model (and in its ``theta_se``).
@@ -142,6 +144,7 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
     Returns a :class:`HerdFit` whose model is a :class:`HerdModel` (pairwise, or no
     interactions) or a :class:`~herd_ros.model.shared_law.SharedLawModel`."""
     from herd_ros.estimation.model_selection import structured_regression
+    from herd_ros.estimation.robust import fit_agent_robust
     from herd_ros.simulation.prediction import calibrate_prediction_scale
     from herd_ros.model.shared_law import SharedLawModel
 
@@ -163,7 +166,10 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
         else:
             basis = RbfBasis(np.zeros((0, 2)), np.zeros(0))
         reg = structured_regression(positions, i, agents, dt, structure, law, profile, basis)
-        fit = fit_agent(reg, ridge=structure.ridge, se=se)
+        if robust:
+            fit, _ = fit_agent_robust(reg, ridge=structure.ridge, se=se)
+        else:
+            fit = fit_agent(reg, ridge=structure.ridge, se=se)
         pa, K = reg.A_x.shape[1], basis.size
         th, sd = fit.theta, fit.theta_se
         if K == 0:
@@ -185,7 +191,7 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
         if progress is not None:
             progress(a)
     meta = {'min_visits': min_visits, 'ridge': structure.ridge, 'se': se,
-            'terms': structure.terms}
+            'terms': structure.terms, 'loss': 'robust' if robust else 'l2'}
     if shared:
         model = SharedLawModel(
             agents=agents, dt=dt, profile=profile,

@@ -187,7 +187,8 @@ class OnlineHerdEstimator:
                  field_bounds=(-75.0, 75.0, -75.0, 75.0), forgetting: float = 1.0,
                  p0=1e6, min_visits: int = DEFAULT_MIN_VISITS,
                  interaction_radius: float = 60.0, profile_size: int = 6,
-                 stats_window: int = 500, windup: str = 'directional', basis: RbfBasis = None):
+                 stats_window: int = 500, windup: str = 'directional', basis: RbfBasis = None,
+                 robust: bool = False):
         agents = [str(a) for a in agents]
         if len(agents) < 1 or len(set(agents)) != len(agents):
             raise HerdInputError(f'agents must be a non-empty list of distinct ids, got {agents}')
@@ -206,13 +207,14 @@ class OnlineHerdEstimator:
             self.regressor = SharedRegressor(agents, self.basis, self.profile)
         self.min_visits = int(min_visits)
         self.stats_window = int(stats_window)
+        self.robust = bool(robust)
         self.rls = HerdRLS(len(agents), self.regressor.n_params, forgetting, p0, windup=windup)
         self.config = {'agents': agents, 'dt': self.dt, 'law': law,
                        'n_params': self.regressor.n_params,
                        'field_grid': [self.grid.nx, self.grid.ny],
                        'field_bounds': list(self.grid.bounds),
                        'interaction_radius': float(interaction_radius),
-                       'profile_size': int(profile_size)}
+                       'profile_size': int(profile_size), 'robust': self.robust}
         self._reset_stream()
 
     # -- state -----------------------------------------------------------------------------
@@ -273,13 +275,50 @@ class OnlineHerdEstimator:
         missing = ~np.isfinite(p0).all(axis=1)
         valid &= ~self.regressor.missing_neighbors(missing, self.last_seen, p0)
         y = (p2 - p1) / self.dt
-        e = self.rls.update(H, y, valid)
+        if self.robust:
+            weight = self._outlier_weights(H, y)
+            root = np.sqrt(weight)
+            e = self.rls.update(H * root[:, None, None], y * root[:, None], valid) \
+                / np.where(root > 0, root, 1.0)[:, None]
+        else:
+            e = self.rls.update(H, y, valid)
         used = np.isfinite(e).all(axis=1)
         self._count_visits(p0, used)
         self._update_stats(e, used)
         self.buffer_times.pop(0)
         self.buffer_positions.pop(0)
         return SnapshotResult('updated', used, e, self.dt)
+
+    def _outlier_weights(self, H, y):
+        """ω (N,) of each agent's update: the robust Kalman update of Chang (2014, see
+        :mod:`herd_ros.estimation.robust`) inflates the noise covariance Q_i of an update
+        by the factor λ ≥ 1 that brings the Mahalanobis distance² of its a-priori innovation
+        e = y − Hθ, under S(λ) = σ̂_i² H P_i Hᵀ + λ Q_i, down to χ²₂(0.95); ω = 1/λ scales
+        the rows. (Inflating Q by d²/c alone is not enough for a leverage point — the step
+        out of a burst, whose regressor is a 1 km jump: H P Hᵀ is then large itself and the
+        update still dragged the damping from 0.92 to 0.31, measured.) 1 until the agent
+        has 3p updates (no Q to judge by yet)."""
+        from herd_ros.estimation.robust import OUTLIER_CHI2
+        rls = self.rls
+        e = y - np.einsum('nkp,np->nk', H, rls.theta)
+        q = rls.noise_cov()
+        sigma2 = np.trace(q, axis1=1, axis2=2) / 2.0
+        hph = sigma2[:, None, None] * np.einsum('nkp,npq,nlq->nkl', H, rls.P, H)
+        ok = (np.isfinite(e).all(axis=1) & np.isfinite(hph).all(axis=(1, 2))
+              & (rls.samples >= 3 * rls.n_params) & (np.trace(q, axis1=1, axis2=2) > 0))
+        lam = np.ones(len(e))
+        if ok.any():
+            e_o, hph_o, q_o = e[ok], hph[ok], q[ok]
+            lam_o = np.ones(len(e_o))
+            for _ in range(60):                      # λ ← λ d²(λ)/c: d² falls as λ grows
+                S = hph_o + lam_o[:, None, None] * q_o
+                d2 = np.einsum('ni,nij,nj->n', e_o, np.linalg.pinv(S), e_o)
+                grow = d2 > OUTLIER_CHI2 * (1 + 1e-6)
+                if not grow.any():
+                    break
+                lam_o[grow] *= d2[grow] / OUTLIER_CHI2
+            lam[ok] = lam_o
+        return 1.0 / lam
 
     def _push(self, t, p):
         self.buffer_times.append(float(t))

@@ -208,6 +208,7 @@ def selection_entry(selection: dict) -> dict:
           grid: [4.0, 4.0]                    # field grid (absent without a field; the
                                               # model then has one centre of weight 0)
           ridge: 0.0
+          loss: l2                            # or robust (--loss robust)
           cv_rms: 0.0707                      # one-step RMS (m) of the chosen structure
           cv_rms_constant_velocity: 0.0720
           cv_rms_stay_put: 0.4224
@@ -217,7 +218,8 @@ def selection_entry(selection: dict) -> dict:
            'interaction_law': selection['interaction_law'] or 'none'}
     if selection['grid']:
         out['grid'] = [float(g) for g in selection['grid']]
-    out.update({'ridge': float(selection['ridge']), 'cv_rms': float(cv['selected']),
+    out.update({'ridge': float(selection['ridge']), 'loss': selection.get('loss', 'l2'),
+                'cv_rms': float(cv['selected']),
                 'cv_rms_constant_velocity': float(cv['constant_velocity']),
                 'cv_rms_stay_put': float(cv['stay_put'])})
     return out

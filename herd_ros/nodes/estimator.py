@@ -54,6 +54,7 @@ DEFAULTS = {
     'min_visits': 10,
     'interaction_radius': 60.0,
     'profile_size': 6,
+    'robust': False,
     'model_out': 'herd_model.yaml',
     'checkpoint_path': '',
     'checkpoint_period_s': 60.0,
@@ -112,7 +113,7 @@ class Estimator(Node):
         self.core = OnlineHerdEstimator(
             cfg['agents'], cfg['dt'], cfg['law'], cfg['field_grid'], cfg['field_bounds'],
             cfg['forgetting'], cfg['p0'], cfg['min_visits'], cfg['interaction_radius'],
-            cfg['profile_size'])
+            cfg['profile_size'], robust=bool(cfg['robust']))
         self.counts = {'snapshots': 0, 'updates': 0, 'gaps': 0, 'backwards': 0}
         self.clock_warning = ''
         self._resume()
