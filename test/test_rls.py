@@ -195,3 +195,24 @@ def test_rank_deficient_rows_by_hand(compiled):
     assert np.isclose(rls.P[1, 0, 0], pbar / (1 + pbar), rtol=1e-12)
     assert np.isclose(rls.theta[1, 0], 2.0 * pbar / (1 + pbar), rtol=1e-12)
     assert np.allclose(rls.P[1, 1:, 1:], 4.0 * np.eye(2))
+
+
+def test_prequential_skill_counts_the_predictions_made_before_each_update():
+    """The running RMS of the estimator's own predictions, by hand: with λ = 1 and a huge
+    p0, the first prediction of an agent (θ = 0) is stay-put exactly, so after one update
+    model and stay-put errors are equal; constant velocity is Δt·(u^{τ+1} − u^τ)."""
+    from herd_ros.estimation.online_fit import OnlineHerdEstimator
+    est = OnlineHerdEstimator(['a', 'b'], 2.0, 'pairwise', (1, 1), (-10, 10, -10, 10))
+    p = [np.array([[0.0, 0.0], [5.0, 5.0]]), np.array([[1.0, 0.0], [5.0, 6.0]]),
+         np.array([[3.0, 1.0], [4.0, 6.0]])]
+    for k, q in enumerate(p):
+        est.add_snapshot(2.0 * k, q)
+    sk = est.skill()
+    u0, u1 = (p[1] - p[0]) / 2.0, (p[2] - p[1]) / 2.0
+    stay = 2.0 * np.linalg.norm(u1, axis=1)
+    cv = 2.0 * np.linalg.norm(u1 - u0, axis=1)
+    np.testing.assert_allclose(sk['stay_put'], stay)
+    np.testing.assert_allclose(sk['constant_velocity'], cv)
+    np.testing.assert_allclose(sk['model'], stay)          # θ = 0 predicts stay-put
+    assert sk['predictions'].tolist() == [1, 1]
+    assert sk['stay_put_herd'] == pytest.approx(np.sqrt((stay ** 2).mean()))

@@ -230,6 +230,10 @@ class OnlineHerdEstimator:
         self.stat_var = np.zeros((n, 2))    # decayed Σ e_t² (over pairs)
         self.stat_pairs = np.zeros(n)       # decayed count of pairs
         self.prev_residual = np.full((n, 2), np.nan)
+        # prequential skill: Σ squared one-step position errors (m²) of the model (predicted
+        # before the update), constant velocity and stay-put, and their count
+        self.skill_sq = np.zeros((3, n))
+        self.skill_n = np.zeros(n)
 
     def reset(self):
         """Forget everything learned (θ = θ₀, P = P₀, counters and statistics zero)."""
@@ -285,9 +289,34 @@ class OnlineHerdEstimator:
         used = np.isfinite(e).all(axis=1)
         self._count_visits(p0, used)
         self._update_stats(e, used)
+        self._update_skill(e, H[:, :, 0], y, used)
         self.buffer_times.pop(0)
         self.buffer_positions.pop(0)
         return SnapshotResult('updated', used, e, self.dt)
+
+    def _update_skill(self, e, u_prev, y, used):
+        """Prequential one-step errors (Dawid 1984: each prediction made before its data
+        is learned from): model Δt·e (e the a-priori residual), constant velocity
+        Δt·(u^{τ+1} − u^τ), stay-put Δt·u^{τ+1}; u^τ is the damping regressor."""
+        dt2 = self.dt ** 2
+        self.skill_sq[0, used] += dt2 * (e[used] ** 2).sum(1)
+        self.skill_sq[1, used] += dt2 * ((y[used] - u_prev[used]) ** 2).sum(1)
+        self.skill_sq[2, used] += dt2 * (y[used] ** 2).sum(1)
+        self.skill_n[used] += 1
+
+    def skill(self) -> dict:
+        """Running one-step RMS (m) since the start, per agent and for the herd, of the
+        estimator's own predictions (made before each update), constant velocity and
+        stay-put: {'model'|'constant_velocity'|'stay_put': (N,) array, '…_herd': float,
+        'predictions': (N,)}."""
+        out = {'predictions': self.skill_n.copy()}
+        total = self.skill_n.sum()
+        with np.errstate(invalid='ignore', divide='ignore'):
+            for k, name in enumerate(('model', 'constant_velocity', 'stay_put')):
+                out[name] = np.sqrt(self.skill_sq[k] / self.skill_n)
+                out[f'{name}_herd'] = (float(np.sqrt(self.skill_sq[k].sum() / total))
+                                       if total else float('nan'))
+        return out
 
     def _outlier_weights(self, H, y):
         """ω (N,) of each agent's update: the robust Kalman update of Chang (2014, see
@@ -455,6 +484,7 @@ class OnlineHerdEstimator:
                       visits=self.visits, stat_sq=self.stat_sq, stat_w=self.stat_w,
                       stat_lag=self.stat_lag, stat_var=self.stat_var,
                       stat_pairs=self.stat_pairs, prev_residual=self.prev_residual,
+                      skill_sq=self.skill_sq, skill_n=self.skill_n,
                       config=np.array(json.dumps(self.config)))
         return arrays
 
@@ -476,6 +506,7 @@ class OnlineHerdEstimator:
             config = json.loads(str(data['config']))
         except (OSError, ValueError, KeyError) as exc:
             raise HerdInputError(f'{path}: not a readable estimator checkpoint ({exc})') from None
+        config.setdefault('robust', False)          # checkpoints from before the option
         differ = [k for k in self.config if config.get(k) != self.config[k]]
         if differ:
             raise HerdInputError(f'{path}: checkpoint was written for another configuration '
@@ -487,6 +518,9 @@ class OnlineHerdEstimator:
         for key in ('last_seen', 'visits', 'stat_sq', 'stat_w', 'stat_lag', 'stat_var',
                     'stat_pairs', 'prev_residual'):
             setattr(self, key, np.array(data[key]))
+        for key in ('skill_sq', 'skill_n'):        # absent from older checkpoints
+            if key in data:
+                setattr(self, key, np.array(data[key]))
         return True
 
 

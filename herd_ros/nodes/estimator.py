@@ -211,9 +211,18 @@ class Estimator(Node):
     # -- status ----------------------------------------------------------------------------
     def publish_status(self):
         d = self.core.diagnostics()
+        sk = self.core.skill()
         statuses = [diagnostic_status(
             'estimator: herd clock', WARN if self.clock_warning else OK,
-            self.clock_warning or 'snapshots on the clock', dict(self.counts))]
+            self.clock_warning or 'snapshots on the clock', dict(self.counts)),
+            diagnostic_status(
+                'estimator: prediction skill', OK,
+                'running one-step RMS (m) of the herd: model (predicted before each update) '
+                'vs constant velocity vs stay-put',
+                {'model_rms': sk['model_herd'],
+                 'constant_velocity_rms': sk['constant_velocity_herd'],
+                 'stay_put_rms': sk['stay_put_herd'],
+                 'predictions': int(sk['predictions'].sum())})]
         for i, a in enumerate(self.core.agents):
             samples = int(d['samples'][i])
             level = OK if samples > 0 else WARN
@@ -224,7 +233,10 @@ class Estimator(Node):
                 'samples': samples, 'residual_rms': float(d['residual_rms'][i]),
                 'lag1_autocorrelation': float(d['lag1_autocorrelation'][i]),
                 'white_band_95': float(d['white_band'][i]),
-                'condition_P': float(d['condition'][i])}, hardware_id=a))
+                'condition_P': float(d['condition'][i]),
+                'skill_model_rms': float(sk['model'][i]),
+                'skill_constant_velocity_rms': float(sk['constant_velocity'][i]),
+                'skill_stay_put_rms': float(sk['stay_put'][i])}, hardware_id=a))
         self.clock_warning = ''
         self.diag_pub.publish(diagnostic_array(self, statuses))
         self.publish_markers()

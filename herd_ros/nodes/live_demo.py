@@ -229,8 +229,18 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
             n.destroy_node()
         rclpy.try_shutdown()
     model_path = out / 'learned_model.yaml'
+    live_skill = None
     if estimator is not None:
         estimator.core.save_model(model_path, datum=list(setup.datum))
+        sk = estimator.core.skill()
+        live_skill = {
+            'method': 'prequential: each one-step prediction made before its update, '
+                      'running RMS (m) over the whole run',
+            'herd': {m: sk[f'{m}_herd'] for m in ('model', 'constant_velocity', 'stay_put')},
+            'agents': {a: {m: float(sk[m][i]) for m in ('model', 'constant_velocity',
+                                                         'stay_put')}
+                       for i, a in enumerate(agents)},
+            'predictions': int(sk['predictions'].sum())}
     with recorder.lock:
         times = np.asarray(recorder.herd_times)
         cows = HerdTrajectory(times, agents, np.asarray(recorder.herd).reshape(-1, len(agents), 2))
@@ -254,7 +264,7 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
              'setup': setup.to_dict(), 'wall_time_s': time.monotonic() - t0,
              'herd_snapshots': int(len(times)), 'model_updates': int(len(thetas)),
              'robot_samples': int(active.sum()), 'model_file': str(model_path),
-             'prediction_skill': skill}
+             'prediction_skill': skill, 'estimator_skill': live_skill}
     profile_size = int(params['estimator']['ros__parameters'].get('profile_size', 6))
     return write_demo_report(out, cows, robots_traj, agents, param_times, thetas, fence, facts,
                              law=setup.law, profile_size=profile_size)
