@@ -13,7 +13,7 @@ from herd_ros.errors import HerdInputError
 from herd_ros.estimation.herd_fit import aligned_positions, fit_structure, split_runs
 from herd_ros.estimation.model_selection import (FIELD_CELLS, FOLDS, PAIRWISE_MAX_AGENTS,
                                                  RIDGES, TERMS, select_model)
-from herd_ros.estimation.validation import validate
+from herd_ros.estimation.validation import skill_lines, validate
 from herd_ros.model.model_file import save_model, selection_entry
 from herd_ros.model.shared_law import save_shared_model
 from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS
@@ -124,6 +124,7 @@ def run(args) -> int:
     summary = validate(fit, train, test, seed=args.seed)
     summary['selection'] = chosen
     _print_selection(selection, train[0].dt)
+    print('\n'.join(skill_lines(summary)))
     _print_summary(fit, summary, args)
     if args.report:
         from herd_ros.report.fit_figures import write_fit_figures

@@ -8,8 +8,8 @@ import numpy as np
 
 from herd_ros.data_sources import load_runs
 from herd_ros.estimation.herd_fit import HerdFit
-from herd_ros.estimation.validation import validate
-from herd_ros.model.model_file import load_model
+from herd_ros.estimation.validation import skill_lines, validate
+from herd_ros.model.any_model import load_any_model
 from herd_ros.model.rbf_field import FieldGrid
 
 HELP = 'figures (paper Figs. 2-6) and summary.json of a model file on a data file'
@@ -25,18 +25,16 @@ def add_arguments(p):
 
 def run(args) -> int:
     from herd_ros.report.fit_figures import write_fit_figures
-    model = load_model(args.model)
+    model = load_any_model(args.model)
     runs, _ = load_runs(args.data, dt=args.dt or model.dt)
     pts = np.concatenate([r.positions.reshape(-1, 2) for r in runs])
-    grid = FieldGrid.over(pts, 8, 8)
+    grid = FieldGrid.over(pts[np.isfinite(pts).all(-1)], 8, 8)
     fit = HerdFit(model=model, fits={}, grid=grid)
     summary = validate(fit, runs, runs, seed=args.seed)
     paths = write_fit_figures(fit, summary, runs, args.out)
     public = {k: v for k, v in summary.items() if not k.startswith('_')}
     public['figures'] = [p.name for p in paths]
     (Path(args.out) / 'summary.json').write_text(json.dumps(public, indent=1))
-    one = summary['one_step_rms']
-    print(f'one-step RMS (m): model {one["model"]["herd"]:.3f}, constant velocity '
-          f'{one["constant_velocity"]["herd"]:.3f}, stay-put {one["stay_put"]["herd"]:.3f}')
+    print('\n'.join(skill_lines(summary)))
     print(f'report: {len(paths)} figures and summary.json in {args.out}')
     return 0

@@ -88,11 +88,16 @@ def k_step_rms(model: HerdModel, runs: list[HerdTrajectory], ks=(1, 5, 10, 30),
             vel = vel_next
             if step in counts:
                 truth = p[starts + 1 + step]
-                sums['model'][step] += float(((pos - truth) ** 2).sum(-1).sum())
                 cv = anchor + step * model.dt * anchor_v
-                sums['constant_velocity'][step] += float(((cv - truth) ** 2).sum(-1).sum())
-                sums['stay_put'][step] += float(((anchor - truth) ** 2).sum(-1).sum())
-                counts[step] += truth.shape[0] * truth.shape[1]
+                sq = {m: ((x - truth) ** 2).sum(-1) for m, x in
+                      (('model', pos), ('constant_velocity', cv), ('stay_put', anchor))}
+                # a missing agent or neighbour leaves NaN: counted only where all three
+                # methods have a prediction and the truth is there
+                ok = np.isfinite(sq['model']) & np.isfinite(sq['constant_velocity']) \
+                    & np.isfinite(sq['stay_put'])
+                for m in METHODS:
+                    sums[m][step] += float(sq[m][ok].sum())
+                counts[step] += int(ok.sum())
     return {m: {k: float(np.sqrt(sums[m][k] / counts[k])) if counts[k] else float('nan')
                 for k in ks} for m in METHODS}
 
