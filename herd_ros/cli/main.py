@@ -17,6 +17,19 @@ import sys
 
 from herd_ros.errors import HerdInputError
 
+class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows an option's default only when it has one worth saying: not for None, not for
+    flags, and not when the help text already names it."""
+
+    def _get_help_string(self, action):
+        text = action.help or ''
+        if (action.default is None or action.default is False
+                or action.default is argparse.SUPPRESS or 'default' in text.lower()
+                or action.required):
+            return text
+        return super()._get_help_string(action)
+
+
 # verb name -> module name under herd_ros.cli
 VERBS = {
     'fit': 'fit',
@@ -44,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     for verb, module_name in VERBS.items():
         module = importlib.import_module(f'herd_ros.cli.{module_name}')
         p = sub.add_parser(verb, help=module.HELP, description=module.HELP,
-                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                           formatter_class=DefaultsHelpFormatter)
         module.add_arguments(p)
         p.set_defaults(_run=module.run)
     return parser
