@@ -15,7 +15,7 @@ ROS_WHEELS := "ros-jazzy-rclpy[fastrtps]" ros-jazzy-sensor-msgs ros-jazzy-nav-ms
               ros-jazzy-rosgraph-msgs ros-jazzy-builtin-interfaces ros-jazzy-ament-index-python
 PY_DEPS    := setuptools wheel numpy scipy pandas numba filterpy rosbags PyYAML matplotlib tqdm pillow
 DEV_DEPS   := pytest pytest-timeout pymap3d mcap mcap-ros2-support \
-              colcon-core colcon-ros colcon-python-setup-py
+              colcon-core colcon-ros colcon-python-setup-py colcon-bash
 BENCH_DEPS := padasip
 
 # DDS never leaves this machine: loopback-only discovery and a per-run domain id.

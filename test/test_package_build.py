@@ -88,3 +88,14 @@ def test_colcon_installed_controller_runs_with_a_model_file(colcon_install, tmp_
     assert str(site) in subprocess.run(
         [sys.executable, '-c', 'import herd_ros, os; print(os.path.dirname(herd_ros.__file__))'],
         env=env, capture_output=True, text=True, timeout=60, cwd=tmp_path).stdout
+
+
+def test_install_setup_bash_puts_the_package_on_the_ament_path(colcon_install):
+    """What a ROS user does after `colcon build`: `source install/setup.bash` (colcon-bash)."""
+    setup = colcon_install / 'setup.bash'
+    assert setup.is_file(), 'no install/setup.bash: colcon-bash missing from the build tools'
+    proc = subprocess.run(['bash', '-c', f'source {setup} && echo "$AMENT_PREFIX_PATH"'],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert str(colcon_install / 'herd_ros') in proc.stdout.strip().split(':'), proc.stdout
+    assert (colcon_install / 'herd_ros' / 'lib' / 'herd_ros' / 'herd-ros').exists()
