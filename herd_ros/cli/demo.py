@@ -48,8 +48,9 @@ def add_arguments(p):
                                  f'baboons)')
     p.add_argument('--dt', type=float, default=None,
                    help='herd clock step (s); default: from the fix intervals')
-    p.add_argument('--grid', default='4x3',
-                   help='RBF grid of the environment field (--offline)')
+    p.add_argument('--grid', default='auto',
+                   help='RBF grid of the environment field (--offline; auto = chosen by '
+                        'cross-validation)')
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--rate', type=float, default=None,
                    help='bag replay speed-up; default: the bag plays in about two minutes')
@@ -117,6 +118,8 @@ def run_offline(args) -> int:
     print(f'\ndemo done in {time.perf_counter() - t0:.1f} s. One-step RMS on '
           f'{summary["evaluated_on"]} data: '
           f'model {one["model"]["herd"]:.2f} m, constant velocity '
-          f'{one["constant_velocity"]["herd"]:.2f} m, stay-put {one["stay_put"]["herd"]:.2f} m.')
-    print(f'figures: {out / "report"}/fig2..fig6 *.png; model: {model}')
+          f'{one["constant_velocity"]["herd"]:.2f} m, stay-put {one["stay_put"]["herd"]:.2f} m, '
+          f'damping only {one["damping_only"]["herd"]:.2f} m '
+          f'(selected terms: {summary["selection"]["terms"]}).')
+    print(f'figures: {out / "report"}/*.png; model: {model}')
     return 0
