@@ -38,13 +38,12 @@ import numpy as np
 import pandas as pd
 
 from herd_ros.errors import HerdInputError
+from herd_ros.estimation.model_selection import PAIRWISE_MAX_AGENTS, typical_spacing
 
 #: Field cells over the visited region (about; the grid follows its aspect ratio).
 FIELD_CELLS = 12
 #: Herd-clock steps of data an animal needs per field cell (20 samples per field parameter).
 SAMPLES_PER_FIELD_CELL = 40
-#: Up to this many animals the demo learns the pairwise law; more get the shared law.
-PAIRWISE_MAX_AGENTS = 6
 #: Replay so that the bag takes about this long (s of wall time).
 TARGET_WALL_S = 120.0
 #: Shortest herd clock of the live demo (s). The composed graph replays an hour in two
@@ -145,13 +144,7 @@ def herd_setup_from_fixes(fixes: pd.DataFrame, *, dt: float | None = None,
     speed = np.hypot(steps[..., 0], steps[..., 1]) / dt
     speed = speed[np.isfinite(speed)]
     v99 = float(np.percentile(speed, 99)) if len(speed) else 1.0
-    # typical spacing: median distance to the nearest other animal (on ≤ 2000 ticks)
-    q = p[np.unique(np.linspace(0, len(p) - 1, min(len(p), 2000)).astype(int))]
-    d = np.hypot(*(q[:, :, None, :] - q[:, None, :, :]).transpose(3, 0, 1, 2))
-    d[:, np.arange(traj.n_agents), np.arange(traj.n_agents)] = np.inf
-    nn = np.min(np.where(np.isfinite(d), d, np.inf), axis=2)
-    nn = nn[np.isfinite(nn)]
-    spacing = float(np.median(nn)) if len(nn) else 10.0
+    spacing = typical_spacing([p])   # median nearest-neighbour distance (≤ 2000 ticks)
     times = fixes['time'].to_numpy(float)[valid]
     duration = float(times.max() - times.min())
     if rate is None:
