@@ -195,3 +195,20 @@ def test_predict_refuses_data_without_the_models_agents(tmp_path, capsys):
                   + [f'{t},c,0,{t}\n' for t in range(6)])
     status, _, err = run_cli(['predict', model, data, '-o', tmp_path / 'p.csv'], capsys)
     assert status == 2 and 'no data for agent(s) b' in err
+
+
+def test_simulate_starts_a_late_agent_where_it_is_first_seen(tmp_path, capsys):
+    """Real recordings start with collars missing: the simulation takes each agent's first
+    two consecutive positions (here b appears at step 2), not NaN."""
+    model = _damping_only_model(tmp_path)
+    rows = [f'{2.0 * t},a,{float(t)},0\n' for t in range(6)] + \
+        [f'{2.0 * t},b,0,{10.0 + t}\n' for t in range(2, 6)]
+    data = _write(tmp_path / 'late.csv', rows)
+    status, out, err = run_cli(['simulate', model, '--steps', '5', '--no-noise', '--initial',
+                                data, '-o', tmp_path / 'sim.csv'], capsys)
+    assert status == 0, err
+    sim = read_trajectory_csv(tmp_path / 'sim.csv')[0]
+    np.testing.assert_allclose(sim.positions[0], [[0.0, 0.0], [0.0, 12.0]])
+    # damping only, no noise: u^1 = a u^0, p^1 = p^0 + Δt u^0
+    np.testing.assert_allclose(sim.positions[1], [[1.0, 0.0], [0.0, 13.0]])
+    np.testing.assert_allclose(sim.positions[2], [[1.0 + 0.8, 0.0], [0.0, 13.5]])

@@ -19,8 +19,9 @@ def add_arguments(p):
     p.add_argument('--steps', type=int, default=3600, help='number of time steps')
     p.add_argument('--seed', type=int, default=0, help='noise seed')
     p.add_argument('-o', '--output', required=True, help='trajectory CSV to write')
-    p.add_argument('--initial', help='trajectory CSV whose first two steps start the '
-                                     'simulation (default: agents on a ring about the field)')
+    p.add_argument('--initial', help='trajectory CSV whose first two steps (per agent: the '
+                                     'first two where it is present) start the simulation '
+                                     '(default: agents on a ring about the field)')
     p.add_argument('--no-noise', action='store_true', help='deterministic simulation (w = 0)')
 
 
@@ -40,6 +41,17 @@ def default_initial_positions(model, seed=0):
     return c + radius * np.column_stack([np.cos(ang), np.sin(ang)]) * max(1.0, n / 6)
 
 
+def first_state(p: np.ndarray, dt: float, source) -> tuple[np.ndarray, np.ndarray]:
+    """p^0 and u^0 of every agent from the first two consecutive steps where it is present
+    (collars start late: the first row of a real recording has agents missing)."""
+    both = np.isfinite(p[:-1]).all(-1) & np.isfinite(p[1:]).all(-1)      # (T−1, N)
+    if not both.any(axis=0).all():
+        raise HerdInputError(f'{source}: an agent is never present at two consecutive steps')
+    k = np.argmax(both, axis=0)
+    idx = np.arange(p.shape[1])
+    return p[k, idx], (p[k + 1, idx] - p[k, idx]) / dt
+
+
 def run(args) -> int:
     if args.steps < 2:
         raise HerdInputError(f'--steps must be at least 2, got {args.steps}')
@@ -52,7 +64,7 @@ def run(args) -> int:
         if missing:
             raise HerdInputError(f'{args.initial}: no data for agent(s) {", ".join(missing)}')
         p = r.positions[:, [r.agents.index(a) for a in model.agents]]
-        p0, u0 = p[0], (p[1] - p[0]) / model.dt
+        p0, u0 = first_state(p, model.dt, args.initial)
     else:
         p0 = default_initial_positions(model, args.seed)
     bar = progress(total=args.steps, desc='simulating', unit='step')
