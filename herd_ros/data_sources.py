@@ -22,9 +22,30 @@ from herd_ros.trajectory import HerdTrajectory, clock_is_uniform, read_trajector
 def is_trajectory_csv(path: Path) -> bool:
     if path.suffix.lower() != '.csv' or not path.is_file():
         return False
-    with open(path, newline='') as fh:
-        header = [h.strip().lower() for h in fh.readline().split(',')]
+    with open(path, 'rb') as fh:
+        first = fh.readline(65536)
+    try:
+        line = first.decode('utf-8-sig')
+    except UnicodeDecodeError:
+        return False                    # the format readers say what is wrong with it
+    header = [h.strip().lower() for h in line.split(',')]
     return {'x', 'y', 'time', 'agent'} <= set(header)
+
+
+def planar_fixes_from_runs(path, raw=None) -> pd.DataFrame:
+    """The planar fixes table (:func:`~herd_ros.ingest.pipeline.planar_fixes`) of a
+    trajectory CSV of irregular planar fixes (RTLS, UWB: metres, any intervals)."""
+    from herd_ros.ingest import pipeline
+    raw = read_trajectory_csv(path, require_uniform=False) if raw is None else raw
+    if len(raw) > 1:
+        raise HerdInputError(f'{path}: irregular planar fixes with a run column; ingest '
+                             f'each run separately')
+    r = raw[0]
+    have = np.isfinite(r.positions[..., 0])
+    tt, ii = np.nonzero(have)
+    table = pd.DataFrame({'time': r.times[tt], 'agent': np.asarray(r.agents)[ii],
+                          'x': r.positions[tt, ii, 0], 'y': r.positions[tt, ii, 1]})
+    return pipeline.planar_fixes(table)
 
 
 def load_runs(path, dt: float | None = None, smoother: str = 'none',
@@ -43,16 +64,7 @@ def load_runs(path, dt: float | None = None, smoother: str = 'none',
                               and np.isfinite(r.positions[..., 0]).mean() >= 0.5
                               for r in raw):
             return read_trajectory_csv(path), None
-        if len(raw) > 1:
-            raise HerdInputError(f'{path}: irregular planar fixes with a run column; ingest '
-                                 f'each run separately')
-        r = raw[0]
-        T, N = r.positions.shape[:2]
-        have = np.isfinite(r.positions[..., 0])
-        tt, ii = np.nonzero(have)
-        table = pd.DataFrame({'time': r.times[tt], 'agent': np.asarray(r.agents)[ii],
-                              'x': r.positions[tt, ii, 0], 'y': r.positions[tt, ii, 1]})
-        traj = pipeline.trajectory_from_fixes(pipeline.planar_fixes(table), dt=dt,
+        traj = pipeline.trajectory_from_fixes(planar_fixes_from_runs(path, raw), dt=dt,
                                               smoother=smoother, **filter_params)
         return [traj], None
     fixes = pipeline.load_fixes(path)

@@ -93,9 +93,10 @@ def read_trajectory_csv(path, *, uniform_tolerance: float = 1e-3,
     """
     import pandas as pd
 
+    from herd_ros.io.csv_text import check_csv_text
+
     path = Path(path)
-    if not path.is_file():
-        _fail(path, 'no such file')
+    check_csv_text(path)
     try:
         df = pd.read_csv(path, dtype={'agent': str, 'run': str}, skipinitialspace=True)
     except Exception as exc:  # pandas raises many kinds; say it once

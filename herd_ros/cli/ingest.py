@@ -7,6 +7,8 @@ datum and the per-collar counters; writes the trajectory CSV of DESIGN.md.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 from herd_ros.errors import HerdInputError
 
 HELP = 'filter GPS fixes (CSV, Movebank, GPX or bag) onto one clock: a trajectory CSV'
@@ -76,15 +78,26 @@ def run(args) -> int:
     from herd_ros.ingest.pipeline import format_counters, load_fixes, trajectory_from_fixes
     from herd_ros.trajectory import write_trajectory_csv
 
-    fixes = load_fixes(args.data, args.format)
-    traj = trajectory_from_fixes(fixes, args.dt, datum=parse_datum(args.datum),
+    from herd_ros.data_sources import is_trajectory_csv, planar_fixes_from_runs
+
+    planar = args.format == 'auto' and is_trajectory_csv(Path(args.data))
+    if planar:                      # irregular planar fixes (RTLS, UWB): no geodesy
+        fixes = planar_fixes_from_runs(args.data)
+        datum = None
+    else:
+        fixes = load_fixes(args.data, args.format)
+        datum = parse_datum(args.datum)
+    traj = trajectory_from_fixes(fixes, args.dt, datum=datum,
                                  smoother=args.smoother, progress=True, **filter_kwargs(args))
     write_trajectory_csv(args.output, traj)
-    lat, lon, alt = traj.meta['datum']
     lead, trail = traj.meta['trimmed']
     stale = traj.meta['stale']
-    print(f'datum: lat {lat:.9f} lon {lon:.9f} alt {alt:.3f} '
-          f'({"given" if args.datum else "first valid fix"})')
+    if planar:
+        print('planar fixes (x, y in metres): no datum, no geodesy')
+    else:
+        lat, lon, alt = traj.meta['datum']
+        print(f'datum: lat {lat:.9f} lon {lon:.9f} alt {alt:.3f} '
+              f'({"given" if args.datum else "first valid fix"})')
     dt_how = 'given' if args.dt else 'from the fix intervals'
     print(f'clock: {traj.n_steps} ticks of {traj.meta["dt"]:g} s ({dt_how}) for '
           f'{traj.n_agents} agents (trimmed {lead} leading, {trail} trailing); missing '

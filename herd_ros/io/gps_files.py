@@ -57,14 +57,16 @@ def normalise_fixes(df: pd.DataFrame) -> pd.DataFrame:
     return out[cols].reset_index(drop=True)
 
 
+from herd_ros.io.csv_text import check_csv_text  # noqa: E402
+
+
 def _fail(path, msg):
     raise HerdInputError(f'{path}: {msg}')
 
 
 def _read_csv(path) -> pd.DataFrame:
     path = Path(path)
-    if not path.is_file():
-        _fail(path, 'no such file')
+    check_csv_text(path)
     try:
         df = pd.read_csv(path, dtype=str, skipinitialspace=True, keep_default_na=True)
     except Exception as exc:
@@ -138,7 +140,7 @@ def _check_ranges(path, out, lat='lat', lon='lon'):
         bad = np.abs(v) > limit
         if bad.any():
             k = int(np.argmax(bad))
-            _fail(path, f'line {k + 2}: {name} is {v[k]!r}, outside ±{limit:g} degrees')
+            _fail(path, f'line {k + 2}: {name} is {float(v[k]):g}, outside ±{limit:g} degrees')
 
 
 def read_movebank_csv(path) -> pd.DataFrame:
@@ -217,8 +219,17 @@ def sniff_format(path) -> str:
         return 'gpx'
     if not path.is_file():
         _fail(path, 'no such file or bag')
-    with open(path, encoding='utf-8', errors='replace') as fh:
-        head = fh.readline()
+    with open(path, 'rb') as fh:
+        start = fh.read(4096)
+    if b'\x00' in start:
+        _fail(path, 'a binary file, not a CSV, GPX or bag (NUL bytes)')
+    try:
+        head = start.decode('utf-8-sig').splitlines()[0] if start.strip() else ''
+    except UnicodeDecodeError:
+        check_csv_text(path)               # names the line and the byte
+        head = ''
+    if not head.strip():
+        _fail(path, 'empty file')
     if head.lstrip().startswith('<'):
         return 'gpx'
     cols = {c.strip().strip('"') for c in head.strip().split(',')}
@@ -226,6 +237,14 @@ def sniff_format(path) -> str:
         return 'movebank'
     if {'time', 'agent', 'lat', 'lon'} <= cols:
         return 'gps'
+    if ',' not in head:
+        for sep, name in ((';', 'semicolons'), ('\t', 'tabs'), ('|', 'bars')):
+            if sep in head:
+                _fail(path, f'line 1: the fields are separated by {name}; herd-ros reads '
+                            f'comma-separated files')
+    if {'time', 'agent', 'x', 'y'} <= cols:
+        _fail(path, 'a trajectory CSV of planar positions (x, y in metres), not GPS fixes: '
+                    'fit, ingest, predict and report read it; import needs latitude/longitude')
     _fail(path, f'cannot tell the format: header {head.strip()[:80]!r} is neither a GPS CSV '
                 f'(time,agent,lat,lon[,alt]) nor a Movebank CSV')
 
