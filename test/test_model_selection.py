@@ -172,3 +172,16 @@ def test_on_real_herds_90_percent_ellipses_hold_85_to_95_percent(real_fit):
     coverage = float(np.mean(m2 <= 4.605170185988091))
     print(name, 'held-out coverage of the 90 % ellipses', round(coverage, 4), len(m2))
     assert 0.85 <= coverage <= 0.95, coverage
+
+
+def test_k_step_damping_only_closed_form_equals_iterating_the_law():
+    """p̂^{s+k} = p^s + (a + … + a^k)(p^s − p^{s−1}) (closed form in k_step_rms) against the
+    damping-only model iterated step by step, on the same starts."""
+    from herd_ros.simulation.prediction import k_step_rms
+    truth, run = known_herd(3, 3000)
+    model = fit_structure([run], Structure(False, None, 0.0), bounds=BOUNDS).model
+    out = k_step_rms(model, [run], ks=(1, 5, 30), damping=model.damping)
+    for k in ('1', '5', '30'):
+        k = int(k)
+        assert out['damping_only'][k] == pytest.approx(out['model'][k], rel=1e-9)
+    assert out['stay_put'][30] > out['model'][1]

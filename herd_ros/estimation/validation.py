@@ -77,25 +77,6 @@ def damping_only_rms(train, runs, agents) -> dict:
     return out
 
 
-def damping_only_k_step_rms(train, runs, agents, ks=(1, 5, 10, 30)) -> dict:
-    """{k: herd RMS (m)} of the damping-only model k steps ahead on ``runs`` (a per agent
-    fitted on ``train``): p̂^{s+k} = p^s + (a + a² + … + a^k)(p^s − p^{s−1})."""
-    a = damping_only_fit(np.concatenate([aligned_positions(r, agents) for r in train]))
-    out = {}
-    for k in ks:
-        gain = sum(a ** m for m in range(1, k + 1))
-        sq = []
-        for r in runs:
-            p = aligned_positions(r, agents)
-            if len(p) >= k + 2:
-                pred = p[1:len(p) - k] + gain[None, :, None] * (p[1:len(p) - k] - p[:len(p) - k - 1])
-                sq.append(((pred - p[k + 1:]) ** 2).sum(-1).ravel())
-        v = np.concatenate(sq) if sq else np.zeros(0)
-        with np.errstate(invalid='ignore'):
-            out[str(k)] = float(np.sqrt(np.nanmean(v))) if len(v) else float('nan')
-    return out
-
-
 def skill_lines(summary: dict) -> list[str]:
     """The skill table that leads a fit or report: herd RMS (m) of the model against
     constant velocity, stay-put and damping only, one step and k steps ahead."""
@@ -138,10 +119,9 @@ def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajector
     summary['one_step_rms'] = one_step_rms(model, evaluate_on)
     summary['one_step_rms']['damping_only'] = damping_only_rms(train, evaluate_on,
                                                                model.agents)
+    a = damping_only_fit(np.concatenate([aligned_positions(r, model.agents) for r in train]))
     summary['k_step_rms'] = {m: {str(k): v for k, v in d.items()}
-                             for m, d in k_step_rms(model, evaluate_on, ks).items()}
-    summary['k_step_rms']['damping_only'] = damping_only_k_step_rms(train, evaluate_on,
-                                                                    model.agents, ks)
+                             for m, d in k_step_rms(model, evaluate_on, ks, damping=a).items()}
     for a in model.agents:
         vel, res = [], []
         for r in evaluate_on:

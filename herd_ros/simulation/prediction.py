@@ -59,15 +59,20 @@ def one_step_rms(model: HerdModel, runs: list[HerdTrajectory]) -> dict[str, dict
 
 
 def k_step_rms(model: HerdModel, runs: list[HerdTrajectory], ks=(1, 5, 10, 30),
-               max_starts: int = 2000) -> dict[str, dict[int, float]]:
+               max_starts: int = 2000, damping=None) -> dict[str, dict[int, float]]:
     """{method: {k: herd RMS (m)}} of k-step-ahead prediction from many start steps.
 
     All start steps of a run are simulated together (the model is vectorized over a leading
-    axis), at most ``max_starts`` evenly spaced starts per run.
+    axis), at most ``max_starts`` evenly spaced starts per run. With ``damping`` (N,) the
+    damping-only model p̂^{s+k} = p^s + (a + … + a^k)(p^s − p^{s−1}) is scored too
+    (``'damping_only'``). Every method is counted on the same starts and agents: where all of
+    them have a prediction and the truth is there.
     """
     kmax = max(ks)
-    sums = {m: {k: 0.0 for k in ks} for m in METHODS}
+    methods = METHODS + (('damping_only',) if damping is not None else ())
+    sums = {m: {k: 0.0 for k in ks} for m in methods}
     counts = {k: 0 for k in ks}
+    a = None if damping is None else np.asarray(damping, dtype=float)[:, None]
     for r in runs:
         p = _aligned(model, r)
         T = p.shape[0]
@@ -79,6 +84,7 @@ def k_step_rms(model: HerdModel, runs: list[HerdTrajectory], ks=(1, 5, 10, 30),
         pos = p[starts + 1].copy()               # p^{τ+1}
         vel = (p[starts + 1] - p[starts]) / model.dt  # u^τ
         anchor, anchor_v = pos.copy(), vel.copy()
+        gain = np.zeros_like(a) if a is not None else None
         # u^{τ+1} = a u^τ + drift(p^τ); p^{τ+2} = p^{τ+1} + Δt u^{τ+1}
         prev = p[starts].copy()
         for step in range(1, kmax + 1):
@@ -86,20 +92,23 @@ def k_step_rms(model: HerdModel, runs: list[HerdTrajectory], ks=(1, 5, 10, 30),
             prev = pos
             pos = pos + model.dt * vel_next
             vel = vel_next
+            if a is not None:
+                gain = gain + a ** step
             if step in counts:
                 truth = p[starts + 1 + step]
-                cv = anchor + step * model.dt * anchor_v
-                sq = {m: ((x - truth) ** 2).sum(-1) for m, x in
-                      (('model', pos), ('constant_velocity', cv), ('stay_put', anchor))}
-                # a missing agent or neighbour leaves NaN: counted only where all three
-                # methods have a prediction and the truth is there
-                ok = np.isfinite(sq['model']) & np.isfinite(sq['constant_velocity']) \
-                    & np.isfinite(sq['stay_put'])
-                for m in METHODS:
+                preds = [('model', pos), ('constant_velocity', anchor + step * model.dt * anchor_v),
+                         ('stay_put', anchor)]
+                if a is not None:
+                    preds.append(('damping_only', anchor + gain * model.dt * anchor_v))
+                sq = {m: ((x - truth) ** 2).sum(-1) for m, x in preds}
+                # a missing agent or neighbour leaves NaN: counted only where every method
+                # has a prediction and the truth is there
+                ok = np.logical_and.reduce([np.isfinite(v) for v in sq.values()])
+                for m in methods:
                     sums[m][step] += float(sq[m][ok].sum())
                 counts[step] += int(ok.sum())
     return {m: {k: float(np.sqrt(sums[m][k] / counts[k])) if counts[k] else float('nan')
-                for k in ks} for m in METHODS}
+                for k in ks} for m in methods}
 
 
 def damping_only_fit(positions: np.ndarray) -> np.ndarray:
