@@ -42,13 +42,9 @@ from herd_ros.simulation.herd_simulator import noise_factors
 MIN_DISTANCE = 1e-3
 
 
-def robot_herd_model(model: HerdModel, assignment: list[str],
-                     robots: list[str] | None = None) -> HerdModel:
-    """A :class:`HerdModel` over robots: robot k carries the law of animal ``assignment[k]``.
-
-    Pair terms come from the animals' pair parameters (θ1, θ2 of A(k) toward A(j)); for two
-    robots on the same animal the mean of A(k)'s θ1, θ2 over its neighbours is used.
-    """
+def _robot_assignment(model, assignment, robots=None) -> tuple[list[str], list[int]]:
+    """The robot names (default robot_1 …) and, per robot, the index of its animal in the
+    model; one clear error for a count mismatch or an animal the model does not have."""
     assignment = [str(a) for a in assignment]
     robots = list(robots) if robots is not None else [f'robot_{k + 1}'
                                                       for k in range(len(assignment))]
@@ -58,7 +54,17 @@ def robot_herd_model(model: HerdModel, assignment: list[str],
     if unknown:
         raise HerdInputError(f'assignment names animal(s) {", ".join(unknown)} that the model '
                              f'does not have (model agents: {", ".join(model.agents)})')
-    index = [model.agents.index(a) for a in assignment]
+    return robots, [model.agents.index(a) for a in assignment]
+
+
+def robot_herd_model(model: HerdModel, assignment: list[str],
+                     robots: list[str] | None = None) -> HerdModel:
+    """A :class:`HerdModel` over robots: robot k carries the law of animal ``assignment[k]``.
+
+    Pair terms come from the animals' pair parameters (θ1, θ2 of A(k) toward A(j)); for two
+    robots on the same animal the mean of A(k)'s θ1, θ2 over its neighbours is used.
+    """
+    robots, index = _robot_assignment(model, assignment, robots)
     n = model.n_agents
     off = ~np.eye(n, dtype=bool)
     count = np.maximum(off.sum(1), 1)
@@ -71,7 +77,7 @@ def robot_herd_model(model: HerdModel, assignment: list[str],
     t2 = np.where(same, mean2[index][:, None], t2)
     laws = {}
     for k, robot in enumerate(robots):
-        law = model.laws[assignment[k]]
+        law = model.laws[model.agents[index[k]]]
         others = [j for j in range(len(robots)) if j != k]
         laws[robot] = AgentLaw(damping=law.damping, neighbors=[robots[j] for j in others],
                                theta1=t1[k, others], theta2=t2[k, others], basis=law.basis,
@@ -186,16 +192,7 @@ def robot_shared_model(model, assignment: list[str], robots: list[str] | None = 
     neighbours are the other robots within the interaction radius (the shared law needs no
     pair parameters, so any assignment works, two robots on one animal included)."""
     from herd_ros.model.shared_law import SharedLawModel
-    assignment = [str(a) for a in assignment]
-    robots = list(robots) if robots is not None else [f'robot_{k + 1}'
-                                                      for k in range(len(assignment))]
-    if len(robots) != len(assignment):
-        raise HerdInputError(f'assignment has {len(assignment)} animals for {len(robots)} robots')
-    unknown = sorted(set(assignment) - set(model.agents))
-    if unknown:
-        raise HerdInputError(f'assignment names animal(s) {", ".join(unknown)} the model '
-                             f'does not have (model agents: {", ".join(model.agents)})')
-    idx = [model.agents.index(a) for a in assignment]
+    robots, idx = _robot_assignment(model, assignment, robots)
     return SharedLawModel(agents=robots, dt=model.dt, profile=model.profile,
                           damping=model.damping[idx], profile_coef=model.profile_coef[idx],
                           bases=[model.bases[i] for i in idx],
