@@ -38,7 +38,7 @@ from herd_ros.nodes.ros_common import declare_parameters
 from herd_ros.nodes.flocking_mode import FlockingPolicy
 from herd_ros.nodes.imitation_mode import ImitationPolicyMode
 from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, diagnostic_array,
-                                       diagnostic_status, run_node)
+                                       diagnostic_status, exit_process, run_node)
 
 DEFAULTS = {
     'robots': ['robot_1', 'robot_2', 'robot_3'],
@@ -404,7 +404,7 @@ class Controller(Node):
 
 
 def main(args=None):
-    raise SystemExit(run_node(Controller, args=args))
+    exit_process(run_node(Controller, args=args))
 
 
 if __name__ == '__main__':

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import array
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +41,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from herd_ros.errors import HerdInputError
 from herd_ros.estimation.online_fit import LAWS, OnlineHerdEstimator
 from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, diagnostic_array,
-                                       diagnostic_status, run_node, seconds_to_stamp,
+                                       diagnostic_status, exit_process, run_node, seconds_to_stamp,
                                        stamp_to_seconds)
 
 DEFAULTS = {
@@ -149,8 +150,17 @@ class Estimator(Node):
             self.get_logger().error(f'cannot write checkpoint: {exc}')
 
     def on_shutdown(self):
+        """On a stop signal: the checkpoint, and the model learned so far (``model_out``),
+        so nothing learned is lost however the node is stopped (short of ``kill -9``)."""
         if self.cfg['checkpoint_path']:
             self.write_checkpoint()
+        if self.cfg['model_out'] and self.counts['updates'] > 0:
+            try:
+                path = self.core.save_model(self.cfg['model_out'],
+                                            frame_id=self.cfg['frame_id'])
+                print(f'estimator: model written to {path}', file=sys.stderr)
+            except (HerdInputError, OSError) as exc:
+                print(f'estimator: model not written: {exc}', file=sys.stderr)
 
     # -- data ------------------------------------------------------------------------------
     def on_poses(self, msg: PoseArray):
@@ -299,7 +309,7 @@ def _points_marker(frame, ns, mid, points, size, color) -> Marker:
 
 
 def main(args=None):
-    return run_node(Estimator, args=args)
+    exit_process(run_node(Estimator, args=args))
 
 
 if __name__ == '__main__':

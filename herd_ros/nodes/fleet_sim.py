@@ -29,7 +29,7 @@ from herd_ros.ingest.geodesy import enu_to_geodetic
 from herd_ros.model.model_file import check_agent_id
 from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, declare_parameters,
                                        diagnostic_array,
-                                       diagnostic_status, run_node)
+                                       diagnostic_status, exit_process, run_node)
 
 DEFAULTS = {
     'robots': ['robot_1', 'robot_2', 'robot_3'],
@@ -263,7 +263,7 @@ class FleetSim(Node):
 
 
 def main(args=None):
-    raise SystemExit(run_node(FleetSim, args=args))
+    exit_process(run_node(FleetSim, args=args))
 
 
 if __name__ == '__main__':

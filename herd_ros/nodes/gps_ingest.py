@@ -51,7 +51,6 @@ import time
 import numpy as np
 import pandas as pd
 import rclpy
-import rclpy.executors
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose, PoseArray
 from nav_msgs.msg import Odometry
@@ -67,7 +66,7 @@ from herd_ros.ingest.pipeline import choose_datum
 from herd_ros.model.model_file import check_agent_id
 from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, declare_parameters,
                                        diagnostic_array,
-                                       diagnostic_status, run_node, seconds_to_stamp,
+                                       diagnostic_status, exit_process, run_node, seconds_to_stamp,
                                        stamp_to_seconds)
 
 #: Variance (m², rad², ...) of the Odometry entries a GPS collar does not observe.
@@ -246,6 +245,7 @@ class GpsIngest(Node):
             self.create_subscription(NavSatFix, f'/herd/{a}/fix',
                                      lambda msg, a=a: self.on_fix(a, msg), cfg.fix_qos)
         self.create_timer(cfg.diagnostics_period, self.publish_diagnostics)
+        self.executor_kind = cfg.executor        # run_node builds it
         if self.datum is not None:
             self._log_datum('parameter')
         self.get_logger().info(f'{len(cfg.agents)} collars, herd clock dt {cfg.dt:g} s, '
@@ -380,44 +380,8 @@ class GpsIngest(Node):
         self.diag_pub.publish(diagnostic_array(self, statuses))
 
 
-class ExecutorFromParameter:
-    """Builds the executor the node's ``executor`` parameter names when :func:`run_node`
-    adds the node: ``events`` = ``rclpy.experimental.EventsExecutor`` (about 4× the small-
-    message throughput of the default), falling back to ``SingleThreadedExecutor`` if it is
-    unavailable or ``single_threaded`` is asked for."""
-
-    def __init__(self):
-        self.executor = None
-        self.executor_context = None
-
-    def add_node(self, node):
-        from rclpy.executors import SingleThreadedExecutor
-        choice = getattr(getattr(node, 'cfg', None), 'executor', 'single_threaded')
-        if choice == 'events':
-            try:
-                from rclpy.experimental import EventsExecutor
-                self.executor = EventsExecutor(context=node.context)
-            except Exception as exc:  # older rclpy: no experimental executor
-                node.get_logger().warn(f'EventsExecutor unavailable ({exc}); using '
-                                       f'SingleThreadedExecutor')
-        if self.executor is None:
-            self.executor = SingleThreadedExecutor(context=node.context)
-        self.executor.add_node(node)
-        self.executor_context = node.context
-
-    def spin(self):
-        if isinstance(self.executor, rclpy.executors.SingleThreadedExecutor):
-            self.executor.spin()
-            return
-        # EventsExecutor.spin() of rclpy 7.1 runs in C++ without returning to Python: it
-        # ignores Ctrl-C/SIGTERM and polls at ~60 % of a core when idle. Short spin_once
-        # calls give the signal handlers their turn and idle at ~3 %.
-        while rclpy.ok(context=self.executor_context):
-            self.executor.spin_once(timeout_sec=0.2)
-
-
 def main(args=None):
-    raise SystemExit(run_node(GpsIngest, args=args, executor=ExecutorFromParameter()))
+    exit_process(run_node(GpsIngest, args=args))
 
 
 if __name__ == '__main__':

@@ -30,7 +30,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from herd_ros.errors import HerdInputError
 from herd_ros.io.bags import BagWriter
-from herd_ros.nodes.ros_common import ParameterError, declare_parameters, run_node
+from herd_ros.nodes.ros_common import ParameterError, declare_parameters, exit_process, run_node
 
 DEFAULTS = {
     'bag': '',
@@ -181,7 +181,7 @@ class Record(Node):
 
 
 def main(args=None):
-    raise SystemExit(run_node(Record, args=args))
+    exit_process(run_node(Record, args=args))
 
 
 if __name__ == '__main__':

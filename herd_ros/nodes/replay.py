@@ -36,7 +36,7 @@ from rosgraph_msgs.msg import Clock
 
 from herd_ros.errors import HerdInputError
 from herd_ros.io.bags import bag_info, read_raw_messages
-from herd_ros.nodes.ros_common import (ParameterError, declare_parameters, run_node,
+from herd_ros.nodes.ros_common import (ParameterError, declare_parameters, exit_process, run_node,
                                        seconds_to_stamp)
 
 DEFAULTS = {
@@ -174,9 +174,6 @@ class Replay(Node):
             f'playing {cfg.bag}: {self.total} messages over {info.duration_s:.3f} s of bag '
             f'time at rate {cfg.rate:g} from offset {cfg.start_offset:g} s'
             f'{" (looping)" if cfg.loop else ""}')
-        # The main thread only spins; this timer makes its wait return now and then so that
-        # Python signal handlers (SIGTERM from run_node) run promptly.
-        self.create_timer(0.1, lambda: None)
         self._stop = threading.Event()
         self.finished = threading.Event()   # set when playback is over (composed graphs wait)
         self._player = threading.Thread(target=self._run, name='replay', daemon=True)
@@ -267,7 +264,7 @@ class Replay(Node):
 
 
 def main(args=None):
-    raise SystemExit(run_node(Replay, args=args))
+    exit_process(run_node(Replay, args=args))
 
 
 if __name__ == '__main__':
