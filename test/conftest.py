@@ -8,6 +8,7 @@ import itertools
 import os
 import random
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -16,6 +17,9 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ['ROS_STATIC_PEERS'] = ''
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
 os.environ.setdefault('MPLBACKEND', 'Agg')
+# Nodes write their files (estimator checkpoint and model) under $ROS_HOME/herd_ros: the
+# tests' go to a directory of their own, never the user's ~/.ros
+os.environ['ROS_HOME'] = tempfile.mkdtemp(prefix='herd_ros_test_ros_home_')
 
 REPO = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent

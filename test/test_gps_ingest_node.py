@@ -44,7 +44,7 @@ def ros(ros_env):
 
 def start_node(console_script, env, tmp_path, agents, **params):
     args = [console_script('gps_ingest'), '--ros-args',
-            '-p', f'agents:=[{", ".join(agents)}]', '-p', 'diagnostics_period:=0.3']
+            '-p', f'agents:=[{", ".join(agents)}]', '-p', 'diagnostics_period_s:=0.3']
     for name, value in params.items():
         if isinstance(value, (list, tuple)):
             value = '[' + ', '.join(repr(float(v)) for v in value) + ']'
@@ -320,7 +320,8 @@ def test_same_snapshots_as_the_offline_path(ros, console_script, tmp_path):
 @pytest.mark.parametrize('overrides, message', [
     ([], 'agents must be a non-empty list'),
     (['agents:=[cow_a, 2cow]'], "agent id '2cow' is not a valid ROS name"),
-    (['agents:=[cow_a]', 'dt:=0.0'], 'dt must be a positive number'),
+    (['agents:=[cow_a]', 'dt:=0.0'], 'dt must be within [0.001, 1e+06], got 0.0'),
+    (['agents:=[cow_a]', 'executor:=fast'], 'executor must be one of events, single_threaded'),
     (['agents:=[cow_a]', 'datum:=[46.8]'], 'datum must be []'),
 ])
 def test_bad_parameters_stop_with_one_clear_line(ros_env, console_script, overrides, message):

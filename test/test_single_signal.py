@@ -73,10 +73,13 @@ def _one_round(tmp_path, ros_env, console_script, sig):
                     took[name] = time.monotonic() - sent
             time.sleep(0.005)
     finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.kill()
-                p.wait()
+        hung = [p for p in procs.values() if p.poll() is None]
+        for p in hung:
+            p.send_signal(signal.SIGUSR1)      # run_node: faulthandler prints the stacks
+        time.sleep(0.5 if hung else 0.0)
+        for p in hung:
+            p.kill()
+            p.wait()
         listener.close()
     outputs = {n: logs[n].read_text() for n in NODES}
     codes = {n: p.returncode for n, p in procs.items()}

@@ -34,44 +34,81 @@ from herd_ros.control.safety import Fence, Obstacles, safe_velocity, stale_mask
 from herd_ros.errors import HerdInputError
 from herd_ros.model.model_file import check_agent_id, model_from_dict
 from herd_ros.model.rbf_field import FieldGrid
-from herd_ros.nodes.ros_common import declare_parameters
+from herd_ros.nodes.ros_common import Param, declare_parameters
 from herd_ros.nodes.flocking_mode import FlockingPolicy
 from herd_ros.nodes.imitation_mode import ImitationPolicyMode
-from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, diagnostic_array,
+from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, ParameterError,
+                                       describe_remaining_parameters, diagnostic_array,
                                        diagnostic_status, exit_process, run_node)
 
 DEFAULTS = {
-    'robots': ['robot_1', 'robot_2', 'robot_3'],
-    'other_robots': [],
-    'mode': 'herd_model',
-    'rate_hz': 10.0,
-    'max_speed': 1.0,
-    'kinematics': 'holonomic',
-    'heading_gain': 2.0,
-    'max_yaw_rate': 2.0,
-    'fence': [],
-    'fence_margin': 0.5,
-    'safety_horizon_s': 1.0,
-    'obstacles': [],
-    'odom_timeout_s': 0.5,
-    'diagnostics_period_s': 1.0,
+    'robots': Param(['robot_1', 'robot_2', 'robot_3'], 'robots this controller commands '
+                                                       '(names as in fleet_sim)'),
+    'other_robots': Param([], 'robots only watched (neighbours, '
+                                                       'never commanded)'),
+    'mode': Param('herd_model', 'control mode', choices=('herd_model', 'flocking',
+                                                         'imitation')),
+    'rate_hz': Param(10.0, 'command rate (Hz, node clock)', range=(1e-6, 1000.0), live=True),
+    'max_speed': Param(1.0, 'speed limit (m/s) of every command', range=(1e-6, 100.0),
+                       live=True),
+    'kinematics': Param('holonomic', 'robot kinematics (as in fleet_sim)',
+                        choices=('holonomic', 'unicycle')),
+    'heading_gain': Param(2.0, 'unicycle: yaw rate per rad of heading error (1/s)',
+                          range=(1e-6, 1000.0)),
+    'max_yaw_rate': Param(2.0, 'unicycle: yaw-rate limit (rad/s)', range=(1e-6, 1000.0)),
+    'fence': Param([], 'fence polygon x1, y1, x2, y2, ... (m, map); '
+                                                'no command crosses it'),
+    'fence_margin': Param(0.5, 'robots stop this far (m) short of the fence',
+                          range=(0.0, 1e6), live=True),
+    'safety_horizon_s': Param(1.0, 'horizon (s) over which a command is checked against fence '
+                                   'and obstacles', range=(1e-6, 1e6)),
+    'obstacles': Param([], 'circular obstacles x, y, r (m) no '
+                                                    'command may enter'),
+    'odom_timeout_s': Param(0.5, 'a robot with older odometry (s) gets a zero command',
+                            range=(1e-6, 1e6), live=True),
+    'diagnostics_period_s': Param(1.0, 'period (s) of /diagnostics', range=(1e-3, 3600.0)),
 }
 
 HERD_MODEL_DEFAULTS = {
-    'assignment': [],
-    'other_assignment': [],
-    'noise': False,
-    'seed': 0,
-    'model_source': 'file',
-    'agents': [],
-    'dt': 1.0,
-    'field_grid': [6, 6],
-    'field_bounds': [-150.0, 150.0, -150.0, 150.0],
-    'model_min_updates': 0,
-    'law': 'pairwise',
-    'interaction_radius': 60.0,
-    'profile_size': 6,
+    'assignment': Param([], 'the animal each robot imitates; empty = '
+                                                     'robot k takes agent k mod N'),
+    'other_assignment': Param([], 'the animal of each other_robot'),
+    'noise': Param(False, 'draw the law\'s noise w ~ N(0, Q) of the assigned animal'),
+    'seed': Param(0, 'seed of the noise generator', range=(0, 2 ** 31 - 1)),
+    'model_source': Param('file', 'model.* parameters of a model file, or live from '
+                                  '/herd/model/params', choices=('file', 'topic')),
+    'agents': Param([], 'topic: the estimator\'s agents, in order'),
+    'dt': Param(1.0, 'topic: the estimator\'s clock step (s)', range=(1e-6, 1e9)),
+    'field_grid': Param([6, 6], 'topic: the estimator\'s field grid [nx, ny]'),
+    'field_bounds': Param([-150.0, 150.0, -150.0, 150.0], 'topic: the estimator\'s field '
+                                                          'bounds [xmin, xmax, ymin, ymax]'),
+    'model_min_updates': Param(0, 'topic: ignore the first N model updates',
+                               range=(0, 10 ** 9)),
+    'law': Param('pairwise', 'topic: the estimator\'s law', choices=('pairwise', 'shared')),
+    'interaction_radius': Param(60.0, 'topic, shared law: the estimator\'s radius (m)',
+                                range=(1e-6, 1e9)),
+    'profile_size': Param(6, 'topic, shared law: the estimator\'s profile size',
+                          range=(1, 1000)),
 }
+
+#: A learned damping a outside [0, 1) is refused (see :func:`damping_problem`).
+DAMPING_RULE = ('damping a must be in [0, 1): a >= 1 makes the law unstable (speeds grow '
+                'without bound), a < 0 reverses the velocity at every step (an oscillation '
+                'no animal makes)')
+
+
+def damping_problem(dampings, agents) -> str | None:
+    """Why a model's dampings are not physical (None if all are): :data:`DAMPING_RULE`.
+
+    The velocity recursion v(t+1) = a·v(t) + ... decays monotonically only for 0 <= a < 1.
+    """
+    a = np.asarray(dampings, dtype=float)
+    bad = ~((a >= 0.0) & (a < 1.0))
+    if not bad.any():
+        return None
+    k = int(np.argmax(bad))
+    return (f'damping {a[k]:.3f} of {agents[k]} is not physical ({DAMPING_RULE})'
+            + (f'; {int(bad.sum())} agents in all' if bad.sum() > 1 else ''))
 
 
 @dataclass
@@ -117,8 +154,13 @@ class HerdModelPolicy:
         self.source = p['model_source']
         self.min_updates = int(p['model_min_updates'])
         self.received = 0
+        self.refused_since_adopted = 0
         if self.source == 'file':
-            self.set_model(self._model_from_parameters())
+            model = self._model_from_parameters()
+            problem = damping_problem(model.damping, list(model.agents))
+            if problem:
+                raise ParameterError(f'model file refused: {problem}')
+            self.set_model(model)
         elif self.source == 'topic':
             self._check_topic_parameters(p)
             self.noise_cov = None
@@ -203,6 +245,14 @@ class HerdModelPolicy:
                                      noise=self.noise, seed=self.rng)
         self.updates += 1
         self.status = f'model of {model.n_agents} animals, dt {model.dt:g} s ({self.source})'
+        if self.updates == 1 or self.refused_since_adopted:
+            a = np.asarray(model.damping, dtype=float)
+            self.node.get_logger().info(
+                f'adopted {"a" if self.updates == 1 else "again a"} {self.status}: damping '
+                f'{a.min():.3f}-{a.max():.3f}'
+                + (f' (after {self.refused_since_adopted} refused updates)'
+                   if self.refused_since_adopted else ''))
+        self.refused_since_adopted = 0
 
     def on_params(self, msg: Float64MultiArray):
         dims = msg.layout.dim
@@ -220,12 +270,11 @@ class HerdModelPolicy:
                 self.status = (f'warming up: model update {self.received} of '
                                f'{self.min_updates} ignored')
                 return
-            unstable = np.abs(theta[:, 0]) >= 1.0
-            if unstable.any():
-                k = int(np.argmax(unstable))
-                raise HerdInputError(f'/herd/model/params: damping {theta[k, 0]:.3f} of '
-                                     f'{self.agents[k]} makes the law unstable (|a| >= 1); '
-                                     f'keeping the previous model')
+            problem = damping_problem(theta[:, 0], self.agents)
+            if problem:
+                kept = 'keeping the previous model' if self.follower is not None else \
+                    'robots hold still until a model is accepted'
+                raise HerdInputError(f'/herd/model/params refused: {problem}; {kept}')
             if self.law == 'shared':
                 model = shared_model_from_parameter_matrix(
                     theta, self.agents, self.dt, self.grid, self.radius, self.profile_size,
@@ -236,6 +285,7 @@ class HerdModelPolicy:
             self.set_model(model)
         except (HerdInputError, ParameterError) as exc:
             self.status = f'ignored parameters: {exc}'
+            self.refused_since_adopted += 1
             self.node.get_logger().warn(str(exc), throttle_duration_sec=10.0)
 
     def on_noise(self, msg: Float64MultiArray):
@@ -288,7 +338,13 @@ class Controller(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.policy = POLICIES[self.mode].from_node(self)
         self._last_diag = -np.inf
-        self.create_timer(self.period, self.tick)
+        self.timer = self.create_timer(self.period, self.tick)
+        describe_remaining_parameters(self, {
+            'model.': 'the model (model file of herd-ros fit or the estimator, or an '
+                      'imitation policy file; keys in the README)',
+            'flocking.': 'flocking gain or setting (config/flocking.yaml)',
+            '': 'not a controller parameter (ignored)'})
+        LiveParameters(self, self._validate_live, self._apply_live)
         self.get_logger().info(f'mode {self.mode}: driving {", ".join(self.robots)} at '
                                f'{1 / self.period:g} Hz; {self.policy.status}')
 
@@ -323,6 +379,24 @@ class Controller(Node):
         self.period = 1.0 / self.rate_hz
         self.horizon = max(self.safety_horizon_s, self.period)
         self.owned = np.array([r in self.robots for r in self.all_robots])
+
+    # -- live parameters (rate_hz, max_speed, fence_margin, odom_timeout_s) ---------------
+    def _validate_live(self, name, value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not np.isfinite(value):
+            return f'must be a number, got {value!r}'
+        if name == 'fence_margin':
+            return None if value >= 0 else f'must be >= 0, got {value}'
+        return None if value > 0 else f'must be positive, got {value}'
+
+    def _apply_live(self, name, value):
+        setattr(self, name, float(value))
+        if name == 'rate_hz':
+            self.period = 1.0 / self.rate_hz
+            self.horizon = max(self.safety_horizon_s, self.period)
+            self.timer.cancel()
+            self.destroy_timer(self.timer)
+            self.timer = self.create_timer(self.period, self.tick)
 
     def now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9

@@ -31,7 +31,6 @@ from pathlib import Path
 import numpy as np
 from geometry_msgs.msg import Point, Pose, PoseArray
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
@@ -40,39 +39,49 @@ from visualization_msgs.msg import Marker, MarkerArray
 from diagnostic_msgs.msg import DiagnosticArray
 from herd_ros.errors import HerdInputError
 from herd_ros.estimation.online_fit import LAWS, OnlineHerdEstimator
-from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, diagnostic_array,
+from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
+                                       data_path, declare_parameters,
+                                       describe_remaining_parameters, diagnostic_array,
                                        diagnostic_status, exit_process, run_node, seconds_to_stamp,
                                        stamp_to_seconds)
 
 DEFAULTS = {
-    'agents': Parameter.Type.STRING_ARRAY,   # required
-    'dt': Parameter.Type.DOUBLE,             # required
-    'law': 'pairwise',
-    'forgetting': 1.0,
-    'p0': 1.0e6,
-    'field_grid': [6, 6],
-    'field_bounds': [-75.0, 75.0, -75.0, 75.0],
-    'min_visits': 10,
-    'interaction_radius': 60.0,
-    'profile_size': 6,
-    'robust': False,
-    'model_out': 'herd_model.yaml',
-    'checkpoint_path': '',
-    'checkpoint_period_s': 60.0,
-    'diagnostics_period_s': 1.0,
-    'frame_id': 'map',
+    'agents': Param([], 'agent ids in the order of the poses in '
+                    '/herd/poses (required)'),
+    'dt': Param(0.0, 'herd clock step (s); snapshots further apart are not paired '
+                     '(required, > 0)'),
+    'law': Param('pairwise', 'interaction law: pairwise (the paper) or shared (one distance '
+                             'profile, neighbours within interaction_radius)', choices=LAWS),
+    'forgetting': Param(1.0, 'RLS forgetting factor λ in (0, 1]; 1 = never forget',
+                        range=(0.0, 1.0), live=True),
+    'p0': Param(1.0e6, 'initial covariance P0 = p0·I (units of the noise variance)',
+                range=(1e-12, 1e300)),
+    'field_grid': Param([6, 6], 'RBF field grid [nx, ny] over field_bounds'),
+    'field_bounds': Param([-75.0, 75.0, -75.0, 75.0], 'field bounds [xmin, xmax, ymin, ymax] '
+                                                      '(m, frame_id)'),
+    'min_visits': Param(10, 'samples an agent needs in a cell for its centre to be kept in the '
+                            'saved model', range=(0, 1000000)),
+    'interaction_radius': Param(60.0, 'shared law: neighbours within this distance (m) '
+                                      'interact', range=(1e-6, 1e9)),
+    'profile_size': Param(6, 'shared law: radial basis terms of the distance profile',
+                          range=(1, 1000)),
+    'robust': Param(False, 'outlier-robust updates (Chang 2014): an innovation beyond '
+                           'χ²₂(0.95) gets its noise inflated', live=True),
+    'model_out': Param('herd_model.yaml', 'model file written by ~/save_model and at stop; '
+                                          'relative to the data directory', live=True),
+    'checkpoint_path': Param('', 'checkpoint (.npz) of the whole estimator, resumed at start '
+                                 'when it matches; relative to the data directory; empty = '
+                                 'none'),
+    'checkpoint_period_s': Param(60.0, 's (wall) between checkpoints', range=(1e-3, 1e9)),
+    'diagnostics_period_s': Param(1.0, 's (wall) between /diagnostics and markers',
+                                  range=(1e-3, 3600.0)),
+    'frame_id': Param('map', 'frame of the predictions and markers'),
 }
 
 
 def read_parameters(node: Node) -> dict:
     """Declare and validate every parameter; ParameterError names the one at fault."""
-    values = {}
-    for name, default in DEFAULTS.items():
-        node.declare_parameter(name, default)
-        try:
-            values[name] = node.get_parameter(name).value
-        except Exception:  # rclpy: ParameterUninitializedException
-            values[name] = None
+    values = declare_parameters(node, DEFAULTS)
     agents = values['agents']
     if not agents or len(set(agents)) != len(agents):
         raise ParameterError('parameter agents must be a non-empty list of distinct agent ids '
@@ -85,8 +94,9 @@ def read_parameters(node: Node) -> dict:
                              f'{values["law"]!r}')
     if values['law'] == 'pairwise' and len(agents) < 2:
         raise ParameterError('law pairwise needs at least two agents')
-    if not 0 < values['forgetting'] <= 1:
-        raise ParameterError(f'parameter forgetting must be in (0, 1], got {values["forgetting"]}')
+    reason = _forgetting_problem(values['forgetting'])
+    if reason:
+        raise ParameterError(f'parameter forgetting {reason}')
     if not (math.isfinite(values['p0']) and values['p0'] > 0):
         raise ParameterError(f'parameter p0 must be a positive number, got {values["p0"]}')
     grid = list(values['field_grid'])
@@ -102,7 +112,17 @@ def read_parameters(node: Node) -> dict:
     if values['profile_size'] < 1 or values['min_visits'] < 0:
         raise ParameterError('parameters profile_size must be ≥ 1 and min_visits ≥ 0')
     values['field_grid'], values['field_bounds'] = grid, b
+    for name in ('model_out', 'checkpoint_path'):
+        values[name] = str(data_path(values[name])) if values[name] else ''
     return values
+
+
+def _forgetting_problem(value) -> str | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return f'must be a number in (0, 1], got {value!r}'
+    if not 0 < value <= 1:
+        return f'must be in (0, 1], got {value}'
+    return None
 
 
 class Estimator(Node):
@@ -130,6 +150,32 @@ class Estimator(Node):
         self.create_timer(cfg['diagnostics_period_s'], self.publish_status)
         if cfg['checkpoint_path']:
             self.create_timer(cfg['checkpoint_period_s'], self.write_checkpoint)
+        describe_remaining_parameters(self, 'not an estimator parameter (ignored)')
+        LiveParameters(self, self._validate_live, self._apply_live)
+        self.get_logger().info(
+            f'{len(cfg["agents"])} agents, dt {cfg["dt"]:g} s, law {cfg["law"]}, '
+            f'{self.core.regressor.n_params} parameters per agent; model file '
+            f'{cfg["model_out"] or "(none)"}, checkpoints '
+            f'{cfg["checkpoint_path"] or "(none)"} every {cfg["checkpoint_period_s"]:g} s')
+
+    # -- live parameters (forgetting, robust, model_out) -----------------------------------
+    def _validate_live(self, name, value):
+        if name == 'forgetting':
+            return _forgetting_problem(value)
+        if name == 'robust' and not isinstance(value, bool):
+            return f'must be true or false, got {value!r}'
+        if name == 'model_out' and not (isinstance(value, str) and value.strip()):
+            return 'must be a file name'
+        return None
+
+    def _apply_live(self, name, value):
+        if name == 'forgetting':
+            self.core.rls.forgetting = float(value)     # read at every update
+        elif name == 'robust':
+            self.core.robust = bool(value)
+        elif name == 'model_out':
+            value = str(data_path(value))
+        self.cfg[name] = value
 
     # -- start and stop --------------------------------------------------------------------
     def _resume(self):
@@ -140,6 +186,8 @@ class Estimator(Node):
             if self.core.load_checkpoint(path):
                 self.get_logger().info(f'resumed from checkpoint {path} '
                                        f'({int(self.core.samples.max())} samples)')
+            else:
+                self.get_logger().info(f'no checkpoint at {path}: starting afresh')
         except HerdInputError as exc:
             self.get_logger().warning(f'{exc}; starting afresh (it will be overwritten)')
 

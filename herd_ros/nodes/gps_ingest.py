@@ -15,7 +15,7 @@ parameter. Publishes
   data time carries the filter's prediction to the tick; a stale agent (silent longer, or
   never initialised) gets a **NaN** position (x = y = z = NaN, identity orientation) —
   missing, never an extrapolation — so consumers must check ``isfinite``.
-* ``/diagnostics`` every ``diagnostics_period`` s of wall time (the only wall-time timer):
+* ``/diagnostics`` every ``diagnostics_period_s`` s of wall time (the only wall-time timer):
   one status per collar (counters per outcome, stale flag, last rejection) — WARN if a fix
   was rejected since the last report or the collar is stale, OK otherwise — and one for the
   node (datum, herd time, ticks published, message errors).
@@ -35,9 +35,9 @@ datum does not depend on which callback ran first (navsat_transform's race) and 
 NaN fix never becomes it. It is logged once.
 
 Two guards keep one wrong stamp from hanging the clock (they have no offline counterpart):
-a stamp more than ``max_stamp_ahead`` s ahead of the wall clock is rejected (reason
+a stamp more than ``max_stamp_ahead_s`` s ahead of the wall clock is rejected (reason
 ``future``, counted by the node), and a jump of the herd's data time by more than
-``max_clock_jump`` s restarts the herd clock at the new time instead of publishing every
+``max_clock_jump_s`` s restarts the herd clock at the new time instead of publishing every
 tick in between (logged, counted).
 
 Bad messages never stop the node: any exception while handling one is caught, counted
@@ -64,7 +64,8 @@ from herd_ros.ingest.geodesy import geodetic_to_enu
 from herd_ros.ingest.herd_clock import HerdClock, HerdSnapshot
 from herd_ros.ingest.pipeline import choose_datum
 from herd_ros.model.model_file import check_agent_id
-from herd_ros.nodes.ros_common import (OK, WARN, ParameterError, declare_parameters,
+from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
+                                       declare_parameters, describe_remaining_parameters,
                                        diagnostic_array,
                                        diagnostic_status, exit_process, run_node, seconds_to_stamp,
                                        stamp_to_seconds)
@@ -75,29 +76,47 @@ UNOBSERVED_VARIANCE = 1e6
 EXECUTORS = ('events', 'single_threaded')
 
 DEFAULTS = {
-    'agents': [],                          # required
-    'datum': [],
-    'dt': 1.0,
-    'default_position_std': 5.0,
-    'position_std_floor': 0.5,
-    'accel_std': 0.05,
-    'velocity_tau': 120.0,
-    'gate_probability': 0.999,
-    'max_speed': 3.0,
-    'cruise_speed': 1.0,
-    'sprint_s': 60.0,
-    'stale_after': 30.0,
-    'initial_velocity_std': 0.0,          # 0 = max_speed
-    'confirm_fixes': 3,
-    'reacquire_fixes': 12,
-    'confirm_fixes_lost': 2,
-    'reinit_after_gap': 300.0,
-    'frame_id': 'map',
-    'diagnostics_period': 1.0,
-    'max_stamp_ahead': 600.0,
-    'max_clock_jump': 3600.0,
-    'executor': 'events',
-    'fix_queue_depth': 50,
+    'agents': Param([], 'collar ids in the order of /herd/poses; '
+                    'each subscribes /herd/<id>/fix and publishes /herd/<id>/odom (required)'),
+    'datum': Param([], 'ENU origin [lat, lon] or [lat, lon, alt] (deg, deg, m); empty = the '
+                       'earliest valid fix'),
+    'dt': Param(1.0, 'herd clock step (s of data time) of /herd/poses', range=(1e-3, 1e6)),
+    'default_position_std': Param(5.0, 'horizontal std (m) of a fix whose covariance is '
+                                       'UNKNOWN', range=(1e-3, 1e4)),
+    'position_std_floor': Param(0.5, 'smallest fix std (m) ever trusted', range=(0.0, 1e4)),
+    'accel_std': Param(0.05, 'std of the white-noise acceleration (m/s²) of the motion model',
+                       range=(0.0, 100.0), live=True),
+    'velocity_tau': Param(120.0, 'velocity correlation time (s) of the motion model; 0 = '
+                                 'constant velocity', range=(0.0, 1e6)),
+    'gate_probability': Param(0.999, 'probability inside the Mahalanobis gate (χ², 2 dof)',
+                              range=(0.5, 1.0)),
+    'max_speed': Param(3.0, 'fastest speed (m/s) an animal keeps up for sprint_s: the reach '
+                            'beyond which a fix is an outlier', range=(0.0, 1000.0), live=True),
+    'cruise_speed': Param(1.0, 'fastest speed (m/s) kept up for minutes (reach after '
+                               'sprint_s)', range=(0.0, 1000.0), live=True),
+    'sprint_s': Param(60.0, 'how long (s) max_speed lasts in the reach envelope',
+                      range=(0.0, 1e6), live=True),
+    'stale_after': Param(30.0, 's of data time without an accepted fix after which a collar '
+                               'is stale (NaN in /herd/poses)', range=(1e-3, 1e9)),
+    'initial_velocity_std': Param(0.0, 'velocity std (m/s) when a filter (re)starts; 0 = '
+                                       'max_speed', range=(0.0, 1000.0)),
+    'confirm_fixes': Param(3, 'consistent fixes that replace a track whose animal walked off',
+                           range=(1, 1000)),
+    'reacquire_fixes': Param(12, 'consistent fixes that replace a track from beyond reach '
+                                 '(outlier bursts never reach it)', range=(1, 10000)),
+    'confirm_fixes_lost': Param(2, 'consistent fixes that start a new track', range=(1, 1000)),
+    'reinit_after_gap': Param(300.0, 'a silence longer than this (s) restarts the track',
+                              range=(0.0, 1e9)),
+    'frame_id': Param('map', 'frame of /herd/<agent>/odom and /herd/poses'),
+    'diagnostics_period_s': Param(1.0, 'period (s, wall time) of /diagnostics',
+                                  range=(1e-3, 3600.0)),
+    'max_stamp_ahead_s': Param(600.0, 'a fix stamped more than this (s) ahead of the wall '
+                                      'clock is rejected', range=(1e-3, 1e12)),
+    'max_clock_jump_s': Param(3600.0, 'a forward jump of data time larger than this (s) '
+                                      'restarts the herd clock', range=(1e-3, 1e12)),
+    'executor': Param('events', 'rclpy executor', choices=EXECUTORS),
+    'fix_queue_depth': Param(50, 'history depth of each /herd/<agent>/fix subscription',
+                             range=(1, 100000)),
 }
 
 #: The node parameters that are :class:`FilterParams` fields (same names).
@@ -134,7 +153,7 @@ class GpsIngestConfig:
                                      f'metres), got {datum!r}') from None
         else:
             self.datum = None
-        for name in ('dt', 'diagnostics_period', 'max_stamp_ahead', 'max_clock_jump'):
+        for name in ('dt', 'diagnostics_period_s', 'max_stamp_ahead_s', 'max_clock_jump_s'):
             value = _number(p, name)
             if not (math.isfinite(value) and value > 0):
                 raise ParameterError(f'{name} must be a positive number of seconds, got '
@@ -244,13 +263,35 @@ class GpsIngest(Node):
         for a in cfg.agents:
             self.create_subscription(NavSatFix, f'/herd/{a}/fix',
                                      lambda msg, a=a: self.on_fix(a, msg), cfg.fix_qos)
-        self.create_timer(cfg.diagnostics_period, self.publish_diagnostics)
+        self.create_timer(cfg.diagnostics_period_s, self.publish_diagnostics)
         self.executor_kind = cfg.executor        # run_node builds it
+        describe_remaining_parameters(self, 'not a gps_ingest parameter (ignored)')
+        LiveParameters(self, self._validate_live, self._apply_live)
         if self.datum is not None:
             self._log_datum('parameter')
         self.get_logger().info(f'{len(cfg.agents)} collars, herd clock dt {cfg.dt:g} s, '
                                f'datum {"from parameter" if self.datum else "first valid fix"}'
                                f', executor {cfg.executor}')
+
+    # -- live parameters (accel_std, max_speed, cruise_speed, sprint_s) --------------------
+    def _live_filter_params(self, name, value):
+        import dataclasses
+        return dataclasses.replace(self.cfg.filter_params, **{name: float(value)})
+
+    def _validate_live(self, name, value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return f'must be a number, got {value!r}'
+        try:
+            self._live_filter_params(name, value)
+        except HerdInputError as exc:
+            return str(exc)
+        return None
+
+    def _apply_live(self, name, value):
+        """The filters read their parameters at every fix: the next fix uses the new value."""
+        self.cfg.filter_params = self._live_filter_params(name, value)
+        for f in self.filters.values():
+            f.params = self.cfg.filter_params
 
     # -- one fix ------------------------------------------------------------------------
     def on_fix(self, agent: str, msg: NavSatFix):
@@ -259,10 +300,10 @@ class GpsIngest(Node):
                    float(msg.longitude), float(msg.altitude), int(msg.status.status),
                    np.asarray(msg.position_covariance, dtype=float).copy(),
                    int(msg.position_covariance_type))
-            if fix[1] > time.time() + self.cfg.max_stamp_ahead:
+            if fix[1] > time.time() + self.cfg.max_stamp_ahead_s:
                 self.rejected_future[agent] += 1
                 self.last_rejection[agent] = (f'future: stamp {fix[1]:.3f} is more than '
-                                              f'max_stamp_ahead ahead of the wall clock')
+                                              f'max_stamp_ahead_s ahead of the wall clock')
                 return
             if self.datum is None:
                 self._hold(fix)
@@ -290,10 +331,10 @@ class GpsIngest(Node):
             self.get_logger().warn(f'{agent}: fix at {stamp:.3f} rejected ({result.reason}: '
                                    f'{result.detail})', throttle_duration_sec=5.0)
         if (math.isfinite(self.clock.herd_time)
-                and stamp > self.clock.herd_time + self.cfg.max_clock_jump):
+                and stamp > self.clock.herd_time + self.cfg.max_clock_jump_s):
             self.clock_restarts += 1
             self.get_logger().warn(f'data time jumped {stamp - self.clock.herd_time:.0f} s '
-                                   f'(> max_clock_jump): herd clock restarted at {stamp:.3f}')
+                                   f'(> max_clock_jump_s): herd clock restarted at {stamp:.3f}')
             self.clock = HerdClock(self.cfg.agents, self.cfg.dt,
                                    self.cfg.filter_params.stale_after)
         for snap in self.clock.observe(agent, stamp, collar):

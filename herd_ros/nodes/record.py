@@ -25,22 +25,27 @@ import time
 from pathlib import Path
 
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from herd_ros.errors import HerdInputError
 from herd_ros.io.bags import BagWriter
-from herd_ros.nodes.ros_common import ParameterError, declare_parameters, exit_process, run_node
+from herd_ros.nodes.ros_common import (Param, ParameterError, declare_parameters,
+                                       describe_remaining_parameters, exit_process, run_node)
 
 DEFAULTS = {
-    'bag': '',
-    'topics': Parameter.Type.STRING_ARRAY,
-    'storage': 'mcap',
-    'flush_period_s': 0.5,
-    'flush_messages': 1000,
-    'discovery_period_s': 0.2,
-    'qos_depth': 1000,
-    'progress_period_s': 10.0,
+    'bag': Param('', 'output bag directory (must not exist); empty = rosbag2_<date-time> in '
+                     'the working directory, as ros2 bag record names it'),
+    'topics': Param([], 'topics to record (absolute names; '
+                                                 'required)'),
+    'storage': Param('mcap', 'mcap (crash-safe) or sqlite3', choices=('mcap', 'sqlite3')),
+    'flush_period_s': Param(0.5, 'mcap: s between flushes (a kill -9 loses at most this)',
+                            range=(1e-3, 1e6)),
+    'flush_messages': Param(1000, 'mcap: messages between flushes', range=(1, 10 ** 9)),
+    'discovery_period_s': Param(0.2, 's between checks for publishers of topics not yet '
+                                     'subscribed', range=(1e-3, 1e6)),
+    'qos_depth': Param(1000, 'subscription queue depth', range=(1, 10 ** 7)),
+    'progress_period_s': Param(10.0, 's (wall) between message counts in the log',
+                               range=(1e-3, 1e6)),
 }
 
 
@@ -112,6 +117,7 @@ class Record(Node):
     def __init__(self):
         super().__init__('record')
         self.cfg = cfg = RecordConfig(declare_parameters(self, DEFAULTS))
+        describe_remaining_parameters(self, 'not a record parameter (ignored)')
         try:
             self.bag = BagWriter(cfg.bag, storage=cfg.storage,
                                  crash_safe=cfg.storage == 'mcap').open()

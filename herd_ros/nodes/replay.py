@@ -29,31 +29,37 @@ import time
 
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
 from rosgraph_msgs.msg import Clock
 
 from herd_ros.errors import HerdInputError
 from herd_ros.io.bags import bag_info, read_raw_messages
-from herd_ros.nodes.ros_common import (ParameterError, declare_parameters, exit_process, run_node,
+from herd_ros.nodes.ros_common import (LiveParameters, Param, ParameterError, declare_parameters,
+                                       describe_remaining_parameters, exit_process, run_node,
                                        seconds_to_stamp)
 
 DEFAULTS = {
-    'bag': '',
-    'rate': 1.0,
-    'loop': False,
-    'start_offset': 0.0,
-    'topics': Parameter.Type.STRING_ARRAY,
-    'remap': Parameter.Type.STRING_ARRAY,
-    'publish_clock': True,
-    'clock_rate_hz': 100.0,
-    'qos_from_bag': True,
-    'default_qos': 'reliable',
-    'default_qos_depth': 100,
-    'wait_for_subscribers': 0,
-    'progress_period_s': 5.0,
-    'exit_when_done': True,
+    'bag': Param('', 'rosbag2 directory (metadata.yaml) or bare .mcap file to play (required)'),
+    'rate': Param(1.0, 'playback speed-up: bag gaps are divided by rate',
+                  range=(1e-6, 1e6), live=True),
+    'loop': Param(False, 'start again from start_offset at the end of the bag'),
+    'start_offset': Param(0.0, 'skip the first start_offset s of the bag', range=(0.0, 1e12)),
+    'topics': Param([], 'topics to play; empty = every topic'),
+    'remap': Param([], "rename topics on output, 'old:=new'"),
+    'publish_clock': Param(True, 'publish the bag time on /clock'),
+    'clock_rate_hz': Param(100.0, '/clock messages per second of wall time between messages',
+                           range=(1e-3, 10000.0)),
+    'qos_from_bag': Param(True, 'offer the QoS recorded in the bag'),
+    'default_qos': Param('reliable', 'QoS of topics without a recorded profile',
+                         choices=('reliable', 'sensor_data')),
+    'default_qos_depth': Param(100, 'history depth of reliable topics without a profile',
+                               range=(1, 1000000)),
+    'wait_for_subscribers': Param(0, 'before playing, wait for this many subscribers on '
+                                     'every topic (0 = start at once)', range=(0, 1000)),
+    'progress_period_s': Param(5.0, 'period (s, wall) of the progress line',
+                               range=(1e-3, 1e6), live=True),
+    'exit_when_done': Param(True, 'end the process (status 0) at the end of the bag'),
 }
 
 
@@ -174,10 +180,21 @@ class Replay(Node):
             f'playing {cfg.bag}: {self.total} messages over {info.duration_s:.3f} s of bag '
             f'time at rate {cfg.rate:g} from offset {cfg.start_offset:g} s'
             f'{" (looping)" if cfg.loop else ""}')
+        describe_remaining_parameters(self, 'not a replay parameter (ignored)')
+        LiveParameters(self, self._validate_live, self._apply_live)
         self._stop = threading.Event()
         self.finished = threading.Event()   # set when playback is over (composed graphs wait)
         self._player = threading.Thread(target=self._run, name='replay', daemon=True)
         self._player.start()
+
+    # -- live parameters (rate, progress_period_s) --------------------------------------
+    def _validate_live(self, name, value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+            return f'must be a number > 0, got {value!r}'
+        return None
+
+    def _apply_live(self, name, value):
+        setattr(self.cfg, name, float(value))     # the player thread reads it per message
 
     # -- player thread ---------------------------------------------------------------
     def _run(self):
@@ -211,7 +228,7 @@ class Replay(Node):
         return False
 
     def _play_once(self, pass_index: int):
-        cfg, rate = self.cfg, self.cfg.rate
+        cfg = self.cfg
         clock_period = 1.0 / cfg.clock_rate_hz
         t_first = t0 = None
         sent = 0
@@ -219,10 +236,13 @@ class Replay(Node):
         for topic, _, t_ns, data in read_raw_messages(cfg.bag, set(self.topics),
                                                       self.start_ns):
             if t_first is None:
-                t_first, t0 = t_ns, time.monotonic()
-            due = wall_schedule(t_ns, t_first, t0, rate)
+                t_first, t0, rate = t_ns, time.monotonic(), cfg.rate
             while True:                                    # wait, ticking /clock
                 now = time.monotonic()
+                if cfg.rate != rate:                       # ros2 param set rate: the bag
+                    t_first += int((now - t0) * rate * 1e9)     # time reached so far is
+                    t0, rate = now, cfg.rate                     # kept, the pace changes
+                due = wall_schedule(t_ns, t_first, t0, rate)
                 if now >= due:
                     break
                 if self.clock_pub is not None:

@@ -5,15 +5,20 @@ core modules (which never import rclpy).
 """
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
+from dataclasses import dataclass
+from pathlib import Path
 
 import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.exceptions import ParameterUninitializedException
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
+                              ParameterUninitializedException)
 from rclpy.executors import ExternalShutdownException
 from rclpy.parameter import Parameter
 
@@ -25,29 +30,161 @@ class ParameterError(ValueError):
     """A parameter value a node cannot run with; the message names the parameter."""
 
 
-def declare_parameters(node, defaults: dict) -> dict:
-    """Declare every parameter of ``defaults`` and return {name: value}.
+@dataclass(frozen=True)
+class Param:
+    """One node parameter: its default, what it means, and whether it may change live.
 
-    A default that is a value is declared with dynamic typing (so ``1`` is accepted for
-    ``1.0`` and the node validates types itself); a default that is a ``Parameter.Type``
-    (e.g. ``STRING_ARRAY``, whose empty default ROS cannot infer) is declared typed and reads
-    as ``[]`` when not given. Parameters already declared from overrides keep their value.
+    ``default`` is a value (declared with dynamic typing, so ``1`` is accepted for ``1.0``;
+    the node validates types itself) or a ``Parameter.Type`` for a typed parameter without a
+    usable default (e.g. ``STRING_ARRAY``, whose empty default ROS cannot infer; it reads as
+    ``[]``, or ``None`` for scalars, when not given). ``range`` (lo, hi) and ``choices``
+    are shown by ``ros2 param describe`` (the node's own checks are the authority: an open
+    bound such as forgetting in (0, 1] is checked there). A parameter that is not ``live``
+    is read-only: it is read once at start, so ``ros2 param set`` is refused rather than
+    answered "successful" and ignored.
     """
-    dynamic = ParameterDescriptor(dynamic_typing=True)
+
+    default: object
+    description: str
+    range: tuple | None = None
+    choices: tuple | None = None
+    live: bool = False
+
+
+READ_ONLY_NOTE = ' (read-only: set at start, e.g. with --params-file)'
+LIVE_NOTE = ' (live: ros2 param set applies it at once, after validation)'
+
+
+def parameter_descriptor(name: str, spec: Param) -> ParameterDescriptor:
+    """The ROS descriptor of ``spec``: description, range, allowed values, read-only."""
+    typed = isinstance(spec.default, Parameter.Type)
+    d = ParameterDescriptor(name=name, dynamic_typing=not typed, read_only=not spec.live,
+                            description=spec.description + (LIVE_NOTE if spec.live
+                                                            else READ_ONLY_NOTE))
+    if typed:
+        d.type = spec.default.value
+    if spec.choices:
+        d.additional_constraints = 'one of: ' + ', '.join(str(c) for c in spec.choices)
+    if spec.range is not None:
+        lo, hi = spec.range
+        if isinstance(spec.default, float) or spec.default == Parameter.Type.DOUBLE:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
+                                                         to_value=float(hi))]
+        elif isinstance(spec.default, int) and not isinstance(spec.default, bool):
+            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+    return d
+
+
+def declare_parameters(node, specs: dict) -> dict:
+    """Declare every parameter of ``specs`` ({name: :class:`Param`}) and return {name: value}.
+
+    Each gets its :func:`parameter_descriptor`. A value from a parameters file outside the
+    declared range is a :class:`ParameterError` naming the parameter (one line at start).
+    Parameters already declared from overrides keep their value and get the descriptor.
+    """
     values = {}
-    for name, default in defaults.items():
-        typed = isinstance(default, Parameter.Type)
-        if not node.has_parameter(name):
-            if typed:
-                node.declare_parameter(name, default)
+    for name, spec in specs.items():
+        if not isinstance(spec, Param):
+            raise TypeError(f'parameter {name}: declare it with a Param (default, description)')
+        typed = isinstance(spec.default, Parameter.Type)
+        descriptor = parameter_descriptor(name, spec)
+        try:
+            if not node.has_parameter(name):
+                node.declare_parameter(name, spec.default, descriptor)
             else:
-                node.declare_parameter(name, default, dynamic)
+                node.set_descriptor(name, descriptor)
+        except InvalidParameterValueException as exc:
+            given = getattr(node, '_parameter_overrides', {}).get(name)
+            given = f', got {given.value!r}' if given is not None else ''
+            why = (f'must be within [{spec.range[0]:g}, {spec.range[1]:g}]{given}'
+                   if spec.range is not None else f': {exc}')
+            raise ParameterError(f'{name} {why}') from None
+        except InvalidParameterTypeException as exc:
+            raise ParameterError(f'parameter {name}: {exc}') from None
         try:
             value = node.get_parameter(name).value
         except ParameterUninitializedException:      # typed, no default given
             value = None
-        values[name] = ([] if typed else default) if value is None else value
+        if value is None and typed:
+            value = [] if 'ARRAY' in spec.default.name else None
+        values[name] = spec.default if value is None and not typed else value
     return values
+
+
+def describe_remaining_parameters(node, descriptions):
+    """Give a descriptor to parameters declared without one: ``use_sim_time`` (live) and
+    entries of a parameters file taken as overrides (``model.*``, ``flocking.*``; read-only).
+    ``descriptions`` is a text, or {name prefix: text} (longest prefix wins, '' = others).
+    """
+    if isinstance(descriptions, str):
+        descriptions = {'': descriptions}
+    for name in node.get_parameters_by_prefix(''):
+        current = node.describe_parameter(name)
+        if current.description:
+            continue
+        if name == 'use_sim_time':
+            text, read_only = ('follow /clock (a replayed bag or a simulator) instead of the '
+                               'system clock' + LIVE_NOTE), False
+        else:
+            prefix = max((p for p in descriptions if name.startswith(p)), key=len, default='')
+            text = descriptions.get(prefix, 'not a parameter of this node (ignored)')
+            text, read_only = text + READ_ONLY_NOTE, True
+        d = ParameterDescriptor(name=name, description=text, read_only=read_only,
+                                dynamic_typing=current.dynamic_typing)
+        if not current.dynamic_typing:
+            d.type = current.type
+        node.set_descriptor(name, d)
+
+
+class LiveParameters:
+    """Validate and apply ``ros2 param set`` on the node's live parameters.
+
+    ``validate(name, value) -> str | None`` returns why a value is refused (None = fine);
+    ``apply(name, value)`` makes it take effect. Read-only parameters never reach here
+    (ROS refuses them by their descriptor); a refused value leaves the parameter unchanged
+    and the reason goes back to the caller and into the log.
+    """
+
+    def __init__(self, node, validate, apply):
+        self.node, self.validate, self.apply = node, validate, apply
+        node.add_on_set_parameters_callback(self._on_set)
+        node.add_post_set_parameters_callback(self._post_set)
+
+    def _on_set(self, params):
+        for p in params:
+            if p.name == 'use_sim_time':
+                continue
+            reason = self.validate(p.name, p.value)
+            if reason:
+                self.node.get_logger().warning(f'refused {p.name} = {p.value!r}: {reason}')
+                return SetParametersResult(successful=False, reason=f'{p.name}: {reason}')
+        return SetParametersResult(successful=True)
+
+    def _post_set(self, params):
+        for p in params:
+            if p.name == 'use_sim_time':
+                continue
+            self.apply(p.name, p.value)
+            self.node.get_logger().info(f'parameter {p.name} = {p.value!r} applied')
+
+
+def data_directory() -> Path:
+    """Where the nodes write their files unless given an absolute path:
+    ``$ROS_HOME/herd_ros`` (``~/.ros/herd_ros`` by default, beside ROS's own ``log``),
+    never the shell's working directory."""
+    ros_home = os.environ.get('ROS_HOME') or os.path.join(os.path.expanduser('~'), '.ros')
+    return Path(ros_home) / 'herd_ros'
+
+
+def data_path(name: str) -> Path:
+    """``name`` as the node will write it: absolute (``~`` expanded) as given, relative
+    under :func:`data_directory` (created when needed)."""
+    path = Path(os.path.expanduser(str(name)))
+    if path.is_absolute():
+        return path
+    root = data_directory()
+    root.mkdir(parents=True, exist_ok=True)
+    return root / path
 
 
 def stamp_to_seconds(stamp) -> float:
@@ -79,8 +216,10 @@ def diagnostic_array(node, statuses) -> DiagnosticArray:
 
 
 def _fmt(v) -> str:
+    """Diagnostic values as text: six significant digits, but stamps and other large
+    numbers in full (``1781530000.125``, not ``1.78153e+09``)."""
     if isinstance(v, float):
-        return f'{v:.6g}'
+        return f'{v:.3f}' if abs(v) >= 1e5 else f'{v:.6g}'
     return str(v)
 
 
@@ -133,7 +272,10 @@ def run_node(node_factory, args=None) -> int:
     ``single_threaded``, the default); a node may end the run itself by shutting its
     context down (replay at the end of the bag).
     """
+    import faulthandler
     from rclpy.signals import SignalHandlerOptions
+    # `kill -USR1 <pid>` prints every thread's stack to stderr: what a hung node is doing
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
 
