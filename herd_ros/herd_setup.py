@@ -81,17 +81,26 @@ class HerdSetup:
 
     def describe(self) -> str:
         """What was chosen, one line per item (the demo prints it)."""
-        lat, lon, alt = self.datum
         b = self.field_bounds
+        derived = 'herd_file' not in self.notes          # from the data, not a herd file
+        datum = (f'lat {self.datum[0]:.7f} lon {self.datum[1]:.7f}'
+                 + (' (median of the valid fixes)' if derived else '')
+                 if self.datum else 'the first valid fix')
+        clock = f'  herd clock: dt {self.dt:g} s'
+        if derived:
+            clock += (f' (median fix interval '
+                      f'{self.notes.get("median_fix_interval_s", float("nan")):.3g} s, live '
+                      f'clock at least {LIVE_MIN_DT:g} s)')
+        fence = (f'{len(self.fence)}-gon' + (', the field bounds with a margin' if derived
+                                            else '') if len(self.fence) else 'none')
         return '\n'.join([
             f'  herd: {len(self.agents)} animals over {self.duration_s / 3600:.1f} h of data',
-            f'  datum: lat {lat:.7f} lon {lon:.7f} (median of the valid fixes)',
-            f'  herd clock: dt {self.dt:g} s (median fix interval '
-            f'{self.notes.get("median_fix_interval_s", float("nan")):.3g} s, live clock at '
-            f'least {LIVE_MIN_DT:g} s); stale after {self.stale_after:.0f} s',
+            f'  datum: {datum}',
+            clock + f'; stale after {self.stale_after:.0f} s',
             f'  field: {self.field_grid[0]} x {self.field_grid[1]} centres over x '
-            f'[{b[0]:.0f}, {b[1]:.0f}] m, y [{b[2]:.0f}, {b[3]:.0f}] m (visited region)',
-            f'  fence: {len(self.fence)}-gon, the field bounds with a margin',
+            f'[{b[0]:.0f}, {b[1]:.0f}] m, y [{b[2]:.0f}, {b[3]:.0f}] m'
+            + (' (visited region)' if derived else ''),
+            f'  fence: {fence}',
             f'  law: {self.law}' + (f' (radius {self.interaction_radius:.0f} m)'
                                     if self.law == 'shared' else ''),
             f'  robots: {len(self.robots)}, max speed {self.robot_max_speed:.2f} m/s',

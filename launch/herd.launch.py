@@ -1,62 +1,64 @@
 """Bring up the whole herd graph on a full ROS 2 Jazzy install.
 
-    ros2 launch herd_ros herd.launch.py [bag:=/path/to/bag] [rate:=10.0] [use_sim_time:=true]
+    ros2 launch herd_ros herd.launch.py [herd:=herd.yaml] [bag:=/path/to/bag] [rate:=30.0]
 
-replay (bag → /herd/<cow>/fix, /clock) → gps_ingest (/herd/<cow>/odom, /herd/poses)
+replay (bag → /herd/<agent>/fix, /clock) → gps_ingest (/herd/<agent>/odom, /herd/poses)
 → estimator (/herd/model/params, prediction, markers) → controller (/fleet/<robot>/cmd_vel,
 model live from /herd/model/params) → fleet_sim (/fleet/<robot>/odom, /fleet/poses).
 
-Parameters come from the package's config/*.yaml; the herd (`agents`), the clock step and the
-field grid are set once here so every node agrees. On the pip path (no `launch` package) the
-same graph runs in one process with `herd-ros demo`.
+Nothing herd-specific lives here: the herd file (``herd:=``; default the shipped
+config/herd_baboons.yaml, the demo's herd) names the agents, datum, clock step, field,
+fence and robots, and :func:`herd_ros.herd_file.node_parameters` turns it into every node's
+parameters — the very function ``herd-ros demo`` uses, so launch and demo cannot drift.
+Write a herd file for another recording with ``herd-ros herd-file BAG -o herd.yaml``; the
+demo writes the one it ran to its output folder. Each node also reads its config/*.yaml
+(parameters the herd does not fix). The replay waits until every node that takes its topics
+has subscribed; estimator files go to $ROS_HOME/herd_ros (~/.ros/herd_ros).
 """
 from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
-from launch_ros.parameter_descriptions import ParameterValue
 
-AGENTS = ['cow_1', 'cow_2', 'cow_3']
-ROBOTS = ['robot_1', 'robot_2', 'robot_3']
-DT = 20.0
-FIELD_GRID = [4, 3]          # coarse: one hour of collar data cannot carry a fine field
-FIELD_BOUNDS = [-200.0, 200.0, -150.0, 150.0]   # the paddock, about the datum below
-DATUM = [27.0153, -108.7937, 0.0]
+GRAPH = ('gps_ingest', 'estimator', 'controller', 'fleet_sim', 'replay')
+
+
+def _graph(context):
+    from herd_ros.herd_file import node_parameters, read_herd_file
+    share = Path(get_package_share_directory('herd_ros'))
+    herd_file = LaunchConfiguration('herd').perform(context) or str(
+        share / 'config' / 'herd_baboons.yaml')
+    setup, herd_bag = read_herd_file(herd_file)
+    bag = LaunchConfiguration('bag').perform(context) or herd_bag
+    if not bag:
+        raise RuntimeError(f'{herd_file} names no bag: give bag:=/path/to/bag')
+    rate = LaunchConfiguration('rate').perform(context)
+    sim_time = LaunchConfiguration('use_sim_time').perform(context).lower() in ('true', '1')
+    params = node_parameters(setup, bag, rate=float(rate) if rate else None)
+    nodes = []
+    for name in GRAPH:
+        own = dict(params[name]['ros__parameters'])
+        if name != 'replay':
+            own['use_sim_time'] = sim_time
+        nodes.append(Node(package='herd_ros', executable=name, name=name, output='screen',
+                          parameters=[str(share / 'config' / f'{name}.yaml'), own]))
+    return nodes
 
 
 def generate_launch_description():
-    share = Path(get_package_share_directory('herd_ros'))
-    config = share / 'config'
-    bag = LaunchConfiguration('bag')
-    rate = LaunchConfiguration('rate')
-    sim_time = LaunchConfiguration('use_sim_time')
-    use_sim_time = {'use_sim_time': ParameterValue(sim_time, value_type=bool)}
-    herd = {'agents': AGENTS, 'dt': DT}
-    field = {'field_grid': FIELD_GRID, 'field_bounds': FIELD_BOUNDS}
-
-    def node(executable, *params):
-        return Node(package='herd_ros', executable=executable, name=executable, output='screen',
-                    parameters=[str(config / f'{executable}.yaml'), *params, use_sim_time])
-
     return LaunchDescription([
-        DeclareLaunchArgument('bag', default_value=str(share / 'bags' / 'cows_3x1h'),
-                              description='rosbag2 of NavSatFix on /herd/<cow>/fix'),
-        DeclareLaunchArgument('rate', default_value='10.0', description='replay speed-up'),
+        DeclareLaunchArgument('herd', default_value='',
+                              description='herd file (herd-ros herd-file BAG writes one); '
+                                          'empty = the shipped config/herd_baboons.yaml'),
+        DeclareLaunchArgument('bag', default_value='',
+                              description='rosbag2 of NavSatFix on /herd/<agent>/fix; empty = '
+                                          'the herd file\'s bag'),
+        DeclareLaunchArgument('rate', default_value='',
+                              description='replay speed-up; empty = the herd file\'s rate'),
         DeclareLaunchArgument('use_sim_time', default_value='true',
                               description='follow the bag clock published by replay'),
-        Node(package='herd_ros', executable='replay', name='replay', output='screen',
-             parameters=[str(config / 'replay.yaml'),
-                         {'bag': bag, 'rate': ParameterValue(rate, value_type=float),
-                          'publish_clock': True}]),
-        node('gps_ingest', herd, {'datum': DATUM}),
-        node('estimator', herd, field, {'law': 'pairwise'}),
-        node('controller', field, {'robots': ROBOTS, 'assignment': AGENTS, 'agents': AGENTS,
-                                   'dt': DT, 'mode': 'herd_model', 'model_source': 'topic',
-                                   'model_min_updates': 30, 'noise': True,
-                                   'rate_hz': 1.0 / DT, 'safety_horizon_s': DT,
-                                   'odom_timeout_s': 3 * DT}),
-        node('fleet_sim', {'robots': ROBOTS, 'datum': DATUM, 'cmd_timeout_s': 1.5 * DT}),
+        OpaqueFunction(function=_graph),
     ])

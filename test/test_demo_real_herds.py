@@ -132,3 +132,19 @@ def test_live_predictions_beat_constant_velocity_and_stay_put(demo_run):
     print(name, rms, n)
     assert n > 1000
     assert rms['model'] <= min(rms['constant_velocity'], rms['stay_put']), rms
+
+
+@pytest.mark.slow
+def test_demo_writes_the_shipped_herd_file_so_launch_and_demo_agree(demo_run):
+    """The demo derives its herd from the bag and writes it as herd.yaml; for the shipped
+    default bag that file is config/herd_baboons.yaml, which the launch file runs: the two
+    cannot have drifted (same agents, datum, clock, field, fence, robots, rate)."""
+    import yaml
+    name, out, stdout, _ = demo_run
+    if name != 'baboons_1h':
+        pytest.skip('the shipped herd file is the baboons\'')
+    written = yaml.safe_load((out / 'herd.yaml').read_text())
+    shipped = yaml.safe_load((REPO / 'config' / 'herd_baboons.yaml').read_text())
+    written.pop('bag'), shipped.pop('bag')
+    assert written == shipped
+    assert 'ros2 launch herd_ros herd.launch.py' in (out / 'herd.yaml').read_text()

@@ -14,13 +14,12 @@ import time
 
 import numpy as np
 import pytest
-import yaml
 from matplotlib.path import Path as PolyPath
 
 from conftest import REPO
 from herd_ros.herd_setup import herd_setup_from_fixes
 from herd_ros.io.bags import read_fix_bag, read_messages
-from herd_ros.nodes.live_demo import _NoAliasDumper, demo_parameters
+from herd_ros.herd_file import dump_yaml, node_parameters
 from herd_ros.simulation.statistics import STATISTICS, herd_statistics
 from herd_ros.trajectory import HerdTrajectory
 
@@ -53,7 +52,7 @@ def test_robots_learn_from_replayed_cows_and_move_like_them(tmp_path, ros_env, c
     setup = herd_setup_from_fixes(read_fix_bag(BAG), dt=DT, rate=RATE)
     assert setup.agents == AGENTS and setup.robots == ROBOTS
     fence = np.asarray(setup.fence)
-    params = demo_parameters(BAG, tmp_path, setup, RATE)
+    params = node_parameters(setup, BAG, out_dir=tmp_path, rate=RATE)
     params['replay']['ros__parameters']['exit_when_done'] = True
     params['replay']['ros__parameters']['wait_for_subscribers'] = 1
     params['gps_ingest']['ros__parameters']['fix_queue_depth'] = 1000
@@ -61,7 +60,7 @@ def test_robots_learn_from_replayed_cows_and_move_like_them(tmp_path, ros_env, c
         'bag': str(tmp_path / 'graph_bag'),
         'topics': ['/herd/poses', '/fleet/poses', '/herd/model/params']}}
     params_file = tmp_path / 'graph.yaml'
-    params_file.write_text(yaml.dump(params, Dumper=_NoAliasDumper, sort_keys=False))
+    params_file.write_text(dump_yaml(params))
     args = ['--ros-args', '--params-file', str(params_file)]
     logs = {}
     procs = []

@@ -1,6 +1,7 @@
 """The package builds with colcon (from PyPI, in this venv) and installs like a ROS package."""
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -99,3 +100,77 @@ def test_install_setup_bash_puts_the_package_on_the_ament_path(colcon_install):
     assert proc.returncode == 0, proc.stderr
     assert str(colcon_install / 'herd_ros') in proc.stdout.strip().split(':'), proc.stdout
     assert (colcon_install / 'herd_ros' / 'lib' / 'herd_ros' / 'herd-ros').exists()
+
+
+LAUNCH_DRIVER = """
+import sys
+from launch import LaunchService
+from launch.actions import IncludeLaunchDescription
+from launch.launch_description_sources import PythonLaunchDescriptionSource
+# noninteractive: a SIGINT to launch is relayed to every node as one SIGINT (what a
+# supervisor, an on_exit shutdown or launch_testing cause); an interactive launch assumes
+# the terminal's Ctrl-C reached the whole process group and sends none
+service = LaunchService(argv=sys.argv[2:], noninteractive=True)
+service.include_launch_description(IncludeLaunchDescription(
+    PythonLaunchDescriptionSource(sys.argv[1]), launch_arguments=[
+        tuple(a.split(':=', 1)) for a in sys.argv[2:]]))
+sys.exit(service.run())
+"""
+
+
+def _launch_env(colcon_install, ros_env):
+    site = next((colcon_install / 'herd_ros' / 'lib').glob('python3*/site-packages'))
+    env = dict(ros_env)
+    env['PYTHONPATH'] = os.pathsep.join([str(site)] + [p for p in os.environ.get(
+        'PYTHONPATH', '').split(os.pathsep) if p])
+    env['AMENT_PREFIX_PATH'] = f'{colcon_install / "herd_ros"}:{sys.prefix}'
+    return env
+
+
+@pytest.mark.slow
+def test_launch_file_runs_the_graph_and_stops_without_escalation(colcon_install, tmp_path,
+                                                                  ros_env):
+    """Issue "a ROS user's first hour", acceptance 2: the colcon-installed launch file, run by
+    launch's own LaunchService, brings data onto /herd/poses, /herd/model/params and
+    /fleet/poses; one SIGINT to the launch process alone (launch, non-interactive, then asks
+    each node with one SIGINT) ends everything without `escalating to 'SIGTERM'`."""
+    env = _launch_env(colcon_install, ros_env)
+    probe = subprocess.run([sys.executable, '-c', 'import launch, launch_ros.actions'],
+                           env=env, capture_output=True, text=True)
+    if probe.returncode != 0:
+        reason = ('launch/launch_ros are not importable here (not on PyPI; a full ROS install '
+                  'or a source install has them): ' + probe.stderr.strip().splitlines()[-1])
+        print(reason)
+        pytest.skip(reason)
+    from geometry_msgs.msg import PoseArray
+    from std_msgs.msg import Float64MultiArray
+
+    from ros_harness import TestListener
+    launch_file = colcon_install / 'herd_ros' / 'share' / 'herd_ros' / 'launch' / 'herd.launch.py'
+    log = open(tmp_path / 'launch.log', 'w')
+    proc = subprocess.Popen([sys.executable, '-c', LAUNCH_DRIVER, str(launch_file),
+                             'rate:=30.0'], env=env, stdout=log, stderr=subprocess.STDOUT,
+                            start_new_session=True)
+    listener = TestListener(ros_env)
+    try:
+        seen = {t: listener.record(m, t) for t, m in (('/herd/poses', PoseArray),
+                                                       ('/herd/model/params', Float64MultiArray),
+                                                       ('/fleet/poses', PoseArray))}
+        ok = listener.spin(90.0, until=lambda: all(len(v) >= 3 for v in seen.values()))
+        assert ok, ({t: len(v) for t, v in seen.items()},
+                    (tmp_path / 'launch.log').read_text()[-3000:])
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGINT)              # the launch process only
+        assert proc.wait(timeout=20) == 0
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        listener.close()
+        log.close()
+    text = (tmp_path / 'launch.log').read_text()
+    assert 'escalating' not in text, text[-3000:]
+    assert 'Traceback' not in text, text[-3000:]
+    assert text.count("sending signal 'SIGINT'") == 5, text[-3000:]
+    herd = seen['/herd/poses'][-1][1]
+    assert len(herd.poses) == 19                     # the shipped herd file: 19 baboons

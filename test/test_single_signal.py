@@ -21,7 +21,7 @@ import yaml
 from conftest import REPO
 from herd_ros.herd_setup import herd_setup_from_fixes
 from herd_ros.io.bags import read_fix_bag, read_messages
-from herd_ros.nodes.live_demo import _NoAliasDumper, demo_parameters
+from herd_ros.herd_file import dump_yaml, node_parameters
 from ros_harness import TestListener
 
 BAG = REPO / 'bags' / 'cows_3x1h'
@@ -33,13 +33,13 @@ NOISE = ('Traceback', 'FATAL', 'Exception in', 'Error', 'failed')
 
 def _graph_parameters(tmp_path):
     setup = herd_setup_from_fixes(read_fix_bag(BAG), dt=20.0, rate=RATE)
-    params = demo_parameters(BAG, tmp_path, setup, RATE)
+    params = node_parameters(setup, BAG, out_dir=tmp_path, rate=RATE)
     params['replay']['ros__parameters'].update(exit_when_done=True, wait_for_subscribers=1)
     params['controller']['ros__parameters']['model_min_updates'] = 5
     params['record'] = {'ros__parameters': {
         'bag': str(tmp_path / 'graph_bag'), 'topics': ['/herd/poses', '/fleet/poses']}}
     path = tmp_path / 'graph.yaml'
-    path.write_text(yaml.dump(params, Dumper=_NoAliasDumper, sort_keys=False))
+    path.write_text(dump_yaml(params))
     return path, params
 
 

@@ -44,8 +44,11 @@ def shipped_bag(name: str = BAG_NAME) -> Path:
 
 def add_arguments(p):
     p.add_argument('--out', default='demo_out', help='report directory')
-    p.add_argument('--bag', help=f'bag to use (default: the shipped bags/{BAG_NAME}, 19 wild '
-                                 f'baboons)')
+    p.add_argument('--bag', help=f'bag to use (default: the herd file\'s bag, else the shipped '
+                                 f'bags/{BAG_NAME}, 19 wild baboons)')
+    p.add_argument('--herd', metavar='HERD_YAML',
+                   help='herd file (herd-ros herd-file writes one; the launch file reads the '
+                        'same); default: everything derived from the bag')
     p.add_argument('--dt', type=float, default=None,
                    help='herd clock step (s); default: from the fix intervals')
     p.add_argument('--grid', default='auto',
@@ -66,11 +69,17 @@ def run(args) -> int:
         raise HerdInputError(f'--rate must be positive, got {args.rate}')
     if args.dt is not None and not args.dt > 0:
         raise HerdInputError(f'--dt must be positive, got {args.dt}')
-    bag = Path(args.bag) if args.bag else shipped_bag()
+    herd_bag = None
+    if args.herd:
+        from herd_ros.herd_file import read_herd_file
+        if args.dt is not None:
+            raise HerdInputError('--dt and --herd: the herd file fixes dt (edit it there)')
+        _, herd_bag = read_herd_file(args.herd)
+    bag = Path(args.bag) if args.bag else herd_bag or shipped_bag()
     if not bag.exists():
         raise HerdInputError(f'{bag}: no such bag')
     t0 = time.perf_counter()
-    summary = run_live_demo(bag, args.out, rate=args.rate, dt=args.dt)
+    summary = run_live_demo(bag, args.out, rate=args.rate, dt=args.dt, herd_file=args.herd)
     print(f'\ndemo done in {time.perf_counter() - t0:.0f} s: {summary["herd_snapshots"]} herd '
           f'snapshots, {summary["model_updates"]} model updates, {summary["robot_samples"]} '
           f'robot samples. Herd statistics, animals vs robots (mean over the herd):')
@@ -88,7 +97,8 @@ def run(args) -> int:
           f'{sk["damping_only"]:.3f} m')
     print(f'report: {args.out}/fig_params.png, fig_trajectories.png, fig_statistics.png, '
           f'summary.json, herd_poses.csv, herd_predictions.csv; learned model: '
-          f'{summary["model_file"]}')
+          f'{summary["model_file"]}; herd file (for ros2 launch herd_ros herd.launch.py '
+          f'herd:=...): {args.out}/herd.yaml')
     return 0
 
 

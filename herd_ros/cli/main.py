@@ -44,6 +44,7 @@ VERBS = {
     'imitate-sim': 'imitate_sim',
     'flock': 'flock',
     'demo': 'demo',
+    'herd-file': 'herd_file',
 }
 
 

@@ -54,8 +54,9 @@ def geodetic_to_ecef(lat, lon, alt, *, nan_alt=None):
     Returns:
         (x, y, z) in metres, arrays of the broadcast shape.
     """
-    phi = np.radians(np.asarray(lat, dtype=float))
-    lam = np.radians(np.asarray(lon, dtype=float))
+    with np.errstate(invalid='ignore'):          # a missing fix (NaN/inf) stays NaN
+        phi = np.radians(np.asarray(lat, dtype=float))
+        lam = np.radians(np.asarray(lon, dtype=float))
     h = _fill_alt(alt, nan_alt)
     sin_phi = np.sin(phi)
     cos_phi = np.cos(phi)

@@ -91,24 +91,35 @@ HERD_MODEL_DEFAULTS = {
                           range=(1, 1000)),
 }
 
-#: A learned damping a outside [0, 1) is refused (see :func:`damping_problem`).
-DAMPING_RULE = ('damping a must be in [0, 1): a >= 1 makes the law unstable (speeds grow '
-                'without bound), a < 0 reverses the velocity at every step (an oscillation '
-                'no animal makes)')
+#: The controller's rule for a learned damping a (see :func:`damping_check`).
+DAMPING_RULE = ('|a| >= 1 is refused: the law is unstable (speeds grow without bound); '
+                '-1 < a < 0 is followed with a warning: the velocity reverses sign every step, '
+                'which no animal does, but a fit on positions with GPS noise at a coarse '
+                'clock learns it (differenced noise is anti-correlated), and it is the best '
+                'one-step law for that data')
 
 
-def damping_problem(dampings, agents) -> str | None:
-    """Why a model's dampings are not physical (None if all are): :data:`DAMPING_RULE`.
+def damping_check(dampings, agents) -> tuple[str | None, str | None]:
+    """(refusal, warning) for a model's dampings under :data:`DAMPING_RULE`.
 
-    The velocity recursion v(t+1) = a·v(t) + ... decays monotonically only for 0 <= a < 1.
+    The velocity recursion v(t+1) = a·v(t) + ... is stable only for |a| < 1 and decays
+    without oscillating only for 0 <= a < 1.
     """
     a = np.asarray(dampings, dtype=float)
-    bad = ~((a >= 0.0) & (a < 1.0))
-    if not bad.any():
-        return None
-    k = int(np.argmax(bad))
-    return (f'damping {a[k]:.3f} of {agents[k]} is not physical ({DAMPING_RULE})'
-            + (f'; {int(bad.sum())} agents in all' if bad.sum() > 1 else ''))
+    unstable = ~(np.abs(a) < 1.0)                   # NaN counts as unstable
+    if unstable.any():
+        k = int(np.argmax(unstable))
+        return (f'damping {a[k]:.3f} of {agents[k]} makes the law unstable (|a| >= 1)'
+                + (f'; {int(unstable.sum())} agents in all' if unstable.sum() > 1 else ''),
+                None)
+    negative = a < 0.0
+    if negative.any():
+        names = ', '.join(f'{agents[k]} {a[k]:.3f}' for k in np.flatnonzero(negative)[:5])
+        return None, (f'negative damping ({names}'
+                      + (', ...' if negative.sum() > 5 else '') + '): the law reverses those '
+                      'velocities every step (usually position noise at a coarse clock); '
+                      'following it')
+    return None, None
 
 
 @dataclass
@@ -157,9 +168,11 @@ class HerdModelPolicy:
         self.refused_since_adopted = 0
         if self.source == 'file':
             model = self._model_from_parameters()
-            problem = damping_problem(model.damping, list(model.agents))
+            problem, warning = damping_check(model.damping, list(model.agents))
             if problem:
                 raise ParameterError(f'model file refused: {problem}')
+            if warning:
+                node.get_logger().warning(warning)
             self.set_model(model)
         elif self.source == 'topic':
             self._check_topic_parameters(p)
@@ -270,7 +283,9 @@ class HerdModelPolicy:
                 self.status = (f'warming up: model update {self.received} of '
                                f'{self.min_updates} ignored')
                 return
-            problem = damping_problem(theta[:, 0], self.agents)
+            problem, warning = damping_check(theta[:, 0], self.agents)
+            if warning:
+                self.node.get_logger().warning(warning, throttle_duration_sec=60.0)
             if problem:
                 kept = 'keeping the previous model' if self.follower is not None else \
                     'robots hold still until a model is accepted'

@@ -43,6 +43,7 @@ from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, Paramete
                                        data_path, declare_parameters,
                                        describe_remaining_parameters, diagnostic_array,
                                        diagnostic_status, exit_process, run_node, seconds_to_stamp,
+                                       wall_timer,
                                        stamp_to_seconds)
 
 DEFAULTS = {
@@ -147,9 +148,9 @@ class Estimator(Node):
         self.create_subscription(PoseArray, '/herd/poses', self.on_poses, qos)
         self.create_service(Trigger, '~/save_model', self.on_save_model)
         self.create_service(Trigger, '~/reset', self.on_reset)
-        self.create_timer(cfg['diagnostics_period_s'], self.publish_status)
+        wall_timer(self, cfg['diagnostics_period_s'], self.publish_status)
         if cfg['checkpoint_path']:
-            self.create_timer(cfg['checkpoint_period_s'], self.write_checkpoint)
+            wall_timer(self, cfg['checkpoint_period_s'], self.write_checkpoint)
         describe_remaining_parameters(self, 'not an estimator parameter (ignored)')
         LiveParameters(self, self._validate_live, self._apply_live)
         self.get_logger().info(

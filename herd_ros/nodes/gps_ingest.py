@@ -68,6 +68,7 @@ from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, Paramete
                                        declare_parameters, describe_remaining_parameters,
                                        diagnostic_array,
                                        diagnostic_status, exit_process, run_node, seconds_to_stamp,
+                                       wall_timer,
                                        stamp_to_seconds)
 
 #: Variance (m², rad², ...) of the Odometry entries a GPS collar does not observe.
@@ -263,7 +264,7 @@ class GpsIngest(Node):
         for a in cfg.agents:
             self.create_subscription(NavSatFix, f'/herd/{a}/fix',
                                      lambda msg, a=a: self.on_fix(a, msg), cfg.fix_qos)
-        self.create_timer(cfg.diagnostics_period_s, self.publish_diagnostics)
+        wall_timer(self, cfg.diagnostics_period_s, self.publish_diagnostics)
         self.executor_kind = cfg.executor        # run_node builds it
         describe_remaining_parameters(self, 'not a gps_ingest parameter (ignored)')
         LiveParameters(self, self._validate_live, self._apply_live)

@@ -21,14 +21,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
-
-class _NoAliasDumper(yaml.SafeDumper):
-    """ROS's parameter-file parser refuses YAML anchors and aliases."""
-
-    def ignore_aliases(self, data):
-        return True
-
 
 class DemoRecorder:
     """Records herd snapshots, robot poses at the same ticks and parameters over time."""
@@ -87,65 +79,20 @@ class DemoRecorder:
             self.params.append(theta.reshape(dims[0].size, dims[1].size))
 
 
-def demo_parameters(bag, out_dir, setup, rate) -> dict:
-    """One parameters mapping with a section per node, all from the :class:`HerdSetup`."""
-    common = {'use_sim_time': True}
-    init = []
-    for x, y in setup.robot_start:
-        init += [float(x), float(y), 0.0]
-    dt = float(setup.dt)
-    herd = {'agents': list(setup.agents), 'dt': dt}
-    field = {'field_grid': [int(g) for g in setup.field_grid],
-             'field_bounds': [float(b) for b in setup.field_bounds]}
-    fence = [float(v) for v in np.asarray(setup.fence).ravel()]
-    v_max = float(setup.robot_max_speed)
-    return {
-        'replay': {'ros__parameters': {'bag': str(bag), 'rate': float(rate), 'loop': False,
-                                       'publish_clock': True, 'wait_for_subscribers': 1,
-                                       # /clock at 40 Hz of wall time is enough for timers of
-                                       # a second or more, and every clock message is a
-                                       # callback in every node of this one Python process
-                                       'clock_rate_hz': 40.0,
-                                       'exit_when_done': False}},
-        'gps_ingest': {'ros__parameters': {**common, **herd, 'datum': list(setup.datum),
-                                           'stale_after': float(setup.stale_after),
-                                           'reinit_after_gap': float(setup.reinit_after_gap),
-                                           'fix_queue_depth': 1000}},
-        'estimator': {'ros__parameters': {
-            **common, **herd, **field, 'law': setup.law, 'forgetting': 1.0,
-            'interaction_radius': float(setup.interaction_radius),
-            'model_out': str(Path(out_dir) / 'learned_model.yaml'),
-            'checkpoint_path': str(Path(out_dir) / 'estimator_checkpoint.npz'),
-            'checkpoint_period_s': 3600.0}},
-        'controller': {'ros__parameters': {
-            **common, **field, 'robots': list(setup.robots), 'assignment': list(setup.agents),
-            'agents': list(setup.agents), 'dt': dt, 'mode': 'herd_model', 'law': setup.law,
-            'interaction_radius': float(setup.interaction_radius),
-            # the estimator's first five minutes of data (at least 30 steps) are too few
-            # for a usable law
-            'model_source': 'topic', 'model_min_updates': int(max(30, np.ceil(300.0 / dt))),
-            'noise': True, 'seed': 0,
-            # one command per model step: the robots run the learned discrete law exactly
-            'rate_hz': 1.0 / dt, 'safety_horizon_s': dt,
-            'max_speed': v_max, 'kinematics': 'holonomic', 'odom_timeout_s': 3.0 * dt,
-            'fence': fence}},
-        'fleet_sim': {'ros__parameters': {
-            **common, 'robots': list(setup.robots), 'kinematics': 'holonomic',
-            'rate_hz': float(min(2.0, 2.0 / dt)), 'initial_poses': init, 'max_speed': v_max,
-            'max_accel': float(max(0.5, v_max)), 'cmd_timeout_s': 1.5 * dt,
-            'fence': fence, 'datum': list(setup.datum)}},
-    }
-
-
 def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = None,
-                  progress_period_s=5.0, log=print) -> dict:
+                  progress_period_s=5.0, log=print, herd_file=None) -> dict:
     """Play ``bag`` through the composed graph; returns the summary written to ``out_dir``.
 
-    ``rate`` and ``dt`` default to what the bag implies (:mod:`herd_ros.herd_setup`)."""
+    The herd comes from ``herd_file`` (:mod:`herd_ros.herd_file`) when given, else from what
+    the bag implies (:mod:`herd_ros.herd_setup`; ``rate`` and ``dt`` override); either way
+    it is written to ``out_dir/herd.yaml``, which ``ros2 launch herd_ros herd.launch.py
+    herd:=...`` runs as the same graph."""
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
+    from herd_ros.herd_file import (dump_yaml, node_parameters, read_herd_file,
+                                    write_herd_file)
     from herd_ros.herd_setup import LIVE_MIN_DT, herd_setup_from_fixes
     from herd_ros.io.bags import bag_info, read_fix_bag
     from herd_ros.nodes.controller import Controller
@@ -159,20 +106,32 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     info = bag_info(bag)
-    setup = herd_setup_from_fixes(read_fix_bag(bag), dt=dt, rate=rate, min_dt=LIVE_MIN_DT)
+    if herd_file is not None:
+        setup, _ = read_herd_file(herd_file)
+        if rate is not None:
+            setup.rate = float(rate)
+        setup.duration_s = float(info.duration_s)
+        log(f'herd from {herd_file}:\n{setup.describe()}')
+    else:
+        setup = herd_setup_from_fixes(read_fix_bag(bag), dt=dt, rate=rate,
+                                      min_dt=LIVE_MIN_DT)
+        log(f'chosen from the bag {Path(bag).name}:\n{setup.describe()}')
     rate = setup.rate
     agents, robots = setup.agents, setup.robots
     fence = np.asarray(setup.fence, dtype=float)
-    log(f'chosen from the bag {Path(bag).name}:\n{setup.describe()}')
-    params = demo_parameters(bag, out, setup, rate)
+    write_herd_file(out / 'herd.yaml', setup, bag, header=(
+        f'Herd file of the demo run on {Path(bag).name} (herd-ros demo).\n'
+        f'The same graph on a ROS install: ros2 launch herd_ros herd.launch.py '
+        f'herd:={(out / "herd.yaml").resolve()}'))
+    params = node_parameters(setup, bag, out_dir=out, rate=rate, composed=True)
     # a demo starts afresh: an estimator checkpoint left by an earlier run in this folder
     # would be resumed (and its clock would be ahead of the replay)
     (out / 'estimator_checkpoint.npz').unlink(missing_ok=True)
     params_file = out / 'demo_parameters.yaml'
-    params_file.write_text(yaml.dump(params, Dumper=_NoAliasDumper, sort_keys=False))
+    params_file.write_text(dump_yaml(params))
     log(f'graph: replay({Path(bag).name}, rate {rate:g}) -> gps_ingest -> estimator -> '
         f'controller -> fleet_sim; {len(agents)} animals, {len(robots)} robots; '
-        f'parameters: {params_file}')
+        f'parameters: {params_file}; herd file: {out / "herd.yaml"}')
 
     rclpy.init(args=['--ros-args', '--params-file', str(params_file)])
     nodes = []
@@ -231,7 +190,7 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     model_path = out / 'learned_model.yaml'
     live_skill = None
     if estimator is not None:
-        estimator.core.save_model(model_path, datum=list(setup.datum))
+        estimator.core.save_model(model_path, datum=list(setup.datum) or None)
         sk = estimator.core.skill()
         live_skill = {
             'method': 'prequential: each one-step prediction made before its update, '

@@ -30,7 +30,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from herd_ros.errors import HerdInputError
 from herd_ros.io.bags import BagWriter
 from herd_ros.nodes.ros_common import (Param, ParameterError, declare_parameters,
-                                       describe_remaining_parameters, exit_process, run_node)
+                                       describe_remaining_parameters, exit_process, run_node,
+                                       wall_timer)
 
 DEFAULTS = {
     'bag': Param('', 'output bag directory (must not exist); empty = rosbag2_<date-time> in '
@@ -129,9 +130,9 @@ class Record(Node):
         self.unflushed = 0
         self.get_logger().info(f'recording {", ".join(cfg.topics)} to {cfg.bag} '
                                f'({cfg.storage})')
-        self.create_timer(cfg.discovery_period_s, self.discover)
-        self.create_timer(cfg.flush_period_s, self.flush)
-        self.create_timer(cfg.progress_period_s, self.report)
+        wall_timer(self, cfg.discovery_period_s, self.discover)
+        wall_timer(self, cfg.flush_period_s, self.flush)
+        wall_timer(self, cfg.progress_period_s, self.report)
         self.discover()
 
     def discover(self):
