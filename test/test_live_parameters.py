@@ -33,7 +33,7 @@ def _node_commands(tmp_path):
         'gps_ingest': [ros, '-p', 'agents:=[cow_1, cow_2]'],
         'estimator': [ros, '-p', 'agents:=[cow_1, cow_2]', '-p', 'dt:=20.0'],
         'controller': [ros, '-p', 'model_source:=topic', '-p', 'agents:=[cow_1, cow_2]',
-                       '-p', 'robots:=[robot_1, robot_2]'],
+                       '-p', 'robots:=[other_1, other_2]'],  # not fleet_sim's robot_1
         'fleet_sim': [ros, '-p', 'robots:=[robot_1]'],
         'replay': [ros, '-p', f'bag:={BAG}', '-p', 'wait_for_subscribers:=1000'],
         'record': [ros, '-p', f'bag:={tmp_path / "rec"}', '-p', 'topics:=[/nothing]'],
@@ -113,19 +113,26 @@ def test_bad_live_values_are_refused_and_good_ones_take_effect(graph):
     odom = listener.record(Odometry, '/fleet/robot_1/odom')
     cmd = listener.node.create_publisher(Twist, '/fleet/robot_1/cmd_vel', 10)
 
-    def speed_after(seconds):
+    def speeds_after(seconds):
+        """Command 2 m/s for ``seconds``; the odometry speeds of the last second."""
         end = time.time() + seconds
         while time.time() < end:
             cmd.publish(Twist(linear=Vector3(x=2.0)))
             listener.spin(0.05)
-        v = odom[-1][1].twist.twist.linear
-        return math.hypot(v.x, v.y)
+        last = [m for t, m in odom if t > end - 1.0]
+        return [math.hypot(m.twist.twist.linear.x, m.twist.twist.linear.y) for m in last]
 
-    assert speed_after(2.5) == pytest.approx(1.0, abs=1e-6)
+    def held_to(speeds, limit):
+        # never above the limit, and at it (a late command may let the watchdog stop the
+        # robot for a step now and then on a busy machine)
+        return max(speeds) <= limit + 1e-6 and sorted(speeds)[len(speeds) // 2] == \
+            pytest.approx(limit, abs=1e-6)
+
+    assert held_to(speeds_after(2.5), 1.0)
     bad = _wait(listener, sim.set_parameters([Parameter('max_speed', value=-2.0)]))
     assert not bad.results[0].successful and bad.results[0].reason
     good = _wait(listener, sim.set_parameters([Parameter('max_speed', value=0.25)]))
     assert good.results[0].successful
-    assert speed_after(2.5) == pytest.approx(0.25, abs=1e-6)
+    assert held_to(speeds_after(2.5), 0.25)
     for p in procs.values():
         assert p.poll() is None
