@@ -50,6 +50,12 @@ def graph(tmp_path, ros_env, console_script):
     procs = {name: start([console_script(name), *args], ros_env, tmp_path / f'{name}.log')
              for name, args in _node_commands(tmp_path).items()}
     listener = TestListener(ros_env, name='param_client')
+    # a node answers its parameter services once it spins: the estimator compiles its RLS
+    # kernel first (seconds with a cold numba cache), so wait until every node answers
+    for name in procs:
+        client = AsyncParameterClient(listener.node, name)
+        assert client.wait_for_services(timeout_sec=60.0), name
+        _wait(listener, client.list_parameters(), timeout=120.0)
     yield listener, procs, tmp_path
     listener.close()
     for p in procs.values():
