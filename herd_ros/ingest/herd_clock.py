@@ -286,7 +286,9 @@ class HerdClock:
             # drop records superseded by a later one still at or before this tick
             while rec.start + 1 < len(r.t) and r.t[rec.start + 1] <= tick:
                 rec.start += 1
-            if rec.start > 1024:   # keep the lists short on long runs
+            if rec.start >= 32:    # keep the lists short on long runs (amortised O(1);
+                # with 1024 a live collar held up to 1024 records: ~0.5 GB for 1000 collars
+                # at 1 Hz, growing for 17 minutes -- measured by test/bench/bench_soak.py)
                 del r.t[:rec.start], r.x[:rec.start], r.P[:rec.start], r.segment[:rec.start]
                 rec.start = 0
             if rec.start < len(r.t) and r.t[rec.start] <= tick:
