@@ -90,6 +90,8 @@ def _one_round(tmp_path, ros_env, console_script, sig):
     for name, text in outputs.items():
         bad = [line for line in text.splitlines() if any(w in line for w in NOISE)]
         assert not bad, f'{name}: {bad[:5]}'
+        if 'teardown took longer' in text:       # run_node's watchdog: said, not hidden
+            print(f'{name}: DDS teardown cut short by the watchdog')
     est = params['estimator']['ros__parameters']
     with np.load(est['checkpoint_path']) as ck:
         assert len(ck.files) > 0
@@ -103,10 +105,11 @@ def _one_round(tmp_path, ros_env, console_script, sig):
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
 def test_one_signal_stops_every_busy_node_cleanly(tmp_path, ros_env, console_script, sig):
     worst = {}
-    for k in range(REPEATS if sig == signal.SIGINT else 1):
+    rounds = REPEATS if sig == signal.SIGINT else 1
+    for k in range(rounds):
         run = tmp_path / f'round_{k}'
         run.mkdir()
         took = _one_round(run, ros_env, console_script, sig)
         worst = {n: max(worst.get(n, 0.0), t) for n, t in took.items()}
-    print(f'{signal.Signals(sig).name}: slowest exit per node over {REPEATS} round(s):',
+    print(f'{signal.Signals(sig).name}: slowest exit per node over {rounds} round(s):',
           {n: round(t, 3) for n, t in worst.items()})
