@@ -31,6 +31,7 @@ Nothing here imports rclpy: the launch file and the command line share it.
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -60,7 +61,6 @@ def herd_file_dict(setup: HerdSetup, bag=None, relative_to=None) -> dict:
         bag_text = str(bag)
         if relative_to is not None:
             try:
-                import os
                 bag_text = os.path.relpath(Path(bag).resolve(), Path(relative_to).resolve())
             except ValueError:                       # another drive (Windows)
                 bag_text = str(Path(bag).resolve())
@@ -104,15 +104,13 @@ def _need(mapping, key, where):
     return mapping[key]
 
 
-def _numbers(value, where, count=None, minimum=None):
+def _numbers(value, where, count=None):
     try:
         out = [float(v) for v in value]
     except (TypeError, ValueError):
         raise HerdInputError(f'{where}: expected a list of numbers, got {value!r}') from None
     if count is not None and len(out) != count:
         raise HerdInputError(f'{where}: expected {count} numbers, got {len(out)}')
-    if minimum is not None and len(out) < minimum:
-        raise HerdInputError(f'{where}: expected at least {minimum} numbers, got {len(out)}')
     if not all(math.isfinite(v) for v in out):
         raise HerdInputError(f'{where}: numbers must be finite, got {value!r}')
     return out

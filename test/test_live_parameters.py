@@ -11,7 +11,6 @@ Every node runs as its installed console script; the test is a ROS client doing 
   ``max_speed`` at once.
 """
 import math
-import subprocess
 import time
 
 import pytest

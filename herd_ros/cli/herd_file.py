@@ -28,6 +28,7 @@ def run(args) -> int:
     from herd_ros.herd_file import write_herd_file
     from herd_ros.herd_setup import LIVE_MIN_DT, herd_setup_from_fixes
     from herd_ros.ingest.pipeline import load_fixes
+    from herd_ros.io.gps_files import sniff_format
     for name in ('dt', 'rate'):
         value = getattr(args, name)
         if value is not None and not value > 0:
@@ -35,7 +36,7 @@ def run(args) -> int:
     data = Path(args.data)
     fixes = load_fixes(data)
     setup = herd_setup_from_fixes(fixes, dt=args.dt, rate=args.rate, min_dt=LIVE_MIN_DT)
-    is_bag = data.is_dir() or data.suffix in ('.mcap', '.db3')
+    is_bag = sniff_format(data) == 'bag'
     path = write_herd_file(args.out, setup, data if is_bag else None, header=(
         f'Herd file of {data.name}, derived by herd-ros herd-file (the live demo\'s choices).\n'
         f'Run: herd-ros demo --herd {args.out}   or   ros2 launch herd_ros herd.launch.py '

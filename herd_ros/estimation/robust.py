@@ -99,7 +99,6 @@ def fit_agent_robust(reg: AgentRegression, ridge: float = 0.0, se: str = 'sandwi
     lever = outlier_weight(mahalanobis2(u - np.median(u, axis=0), mad_noise_cov(u)),
                            LEVERAGE_CHI2)
     fit = fit_agent(_weighted(reg, lever), ridge=ridge, se=se)
-    pa, K = reg.A_x.shape[1], reg.F.shape[1]
     fit = replace(fit, residuals=_residuals(reg, fit.theta))
     q = mad_noise_cov(fit.residuals)
     w = np.ones(reg.n_samples)

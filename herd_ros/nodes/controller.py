@@ -34,12 +34,12 @@ from herd_ros.control.safety import Fence, Obstacles, safe_velocity, stale_mask
 from herd_ros.errors import HerdInputError
 from herd_ros.model.model_file import check_agent_id, model_from_dict
 from herd_ros.model.rbf_field import FieldGrid
-from herd_ros.nodes.ros_common import Param, declare_parameters
 from herd_ros.nodes.flocking_mode import FlockingPolicy
 from herd_ros.nodes.imitation_mode import ImitationPolicyMode
-from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, ParameterError,
-                                       describe_remaining_parameters, diagnostic_array,
-                                       diagnostic_status, exit_process, run_node)
+from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
+                                       declare_parameters, describe_remaining_parameters,
+                                       diagnostic_array, diagnostic_status, exit_process,
+                                       number_problem, run_node)
 
 DEFAULTS = {
     'robots': Param(['robot_1', 'robot_2', 'robot_3'], 'robots this controller commands '
@@ -397,12 +397,7 @@ class Controller(Node):
 
     # -- live parameters (rate_hz, max_speed, fence_margin, odom_timeout_s) ---------------
     def _validate_live(self, name, value):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                or not np.isfinite(value):
-            return f'must be a number, got {value!r}'
-        if name == 'fence_margin':
-            return None if value >= 0 else f'must be >= 0, got {value}'
-        return None if value > 0 else f'must be positive, got {value}'
+        return number_problem(value, strict=name != 'fence_margin')
 
     def _apply_live(self, name, value):
         setattr(self, name, float(value))

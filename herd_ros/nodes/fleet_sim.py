@@ -29,8 +29,8 @@ from herd_ros.ingest.geodesy import enu_to_geodetic
 from herd_ros.model.model_file import check_agent_id
 from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
                                        declare_parameters, describe_remaining_parameters,
-                                       diagnostic_array,
-                                       diagnostic_status, exit_process, run_node)
+                                       diagnostic_array, diagnostic_status, exit_process,
+                                       number_problem, run_node)
 
 DEFAULTS = {
     'robots': Param(['robot_1', 'robot_2', 'robot_3'], 'robot names, in the order of '
@@ -149,10 +149,7 @@ class FleetSim(Node):
 
     # -- live parameters (max_speed, max_accel, max_yaw_rate, cmd_timeout_s) --------------
     def _validate_live(self, name, value):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                or not np.isfinite(value) or value <= 0:
-            return f'must be a positive number, got {value!r}'
-        return None
+        return number_problem(value)
 
     def _apply_live(self, name, value):
         setattr(self.cfg, name, float(value))          # read at every step

@@ -50,7 +50,6 @@ import time
 
 import numpy as np
 import pandas as pd
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose, PoseArray
 from nav_msgs.msg import Odometry
@@ -66,8 +65,8 @@ from herd_ros.ingest.pipeline import choose_datum
 from herd_ros.model.model_file import check_agent_id
 from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
                                        declare_parameters, describe_remaining_parameters,
-                                       diagnostic_array,
-                                       diagnostic_status, exit_process, run_node, seconds_to_stamp,
+                                       diagnostic_array, diagnostic_status, exit_process,
+                                       number_problem, run_node, seconds_to_stamp,
                                        wall_timer,
                                        stamp_to_seconds)
 
@@ -280,8 +279,9 @@ class GpsIngest(Node):
         return dataclasses.replace(self.cfg.filter_params, **{name: float(value)})
 
     def _validate_live(self, name, value):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            return f'must be a number, got {value!r}'
+        problem = number_problem(value, strict=False)
+        if problem:
+            return problem
         try:
             self._live_filter_params(name, value)
         except HerdInputError as exc:

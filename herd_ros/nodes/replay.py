@@ -36,8 +36,8 @@ from rosgraph_msgs.msg import Clock
 from herd_ros.errors import HerdInputError
 from herd_ros.io.bags import bag_info, read_raw_messages
 from herd_ros.nodes.ros_common import (LiveParameters, Param, ParameterError, declare_parameters,
-                                       describe_remaining_parameters, exit_process, run_node,
-                                       seconds_to_stamp)
+                                       describe_remaining_parameters, exit_process,
+                                       number_problem, run_node, seconds_to_stamp)
 
 DEFAULTS = {
     'bag': Param('', 'rosbag2 directory (metadata.yaml) or bare .mcap file to play (required)'),
@@ -189,9 +189,7 @@ class Replay(Node):
 
     # -- live parameters (rate, progress_period_s) --------------------------------------
     def _validate_live(self, name, value):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-            return f'must be a number > 0, got {value!r}'
-        return None
+        return number_problem(value)
 
     def _apply_live(self, name, value):
         setattr(self.cfg, name, float(value))     # the player thread reads it per message

@@ -5,6 +5,7 @@ core modules (which never import rclpy).
 """
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
@@ -17,10 +18,8 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
-from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
-                              ParameterUninitializedException)
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
-from rclpy.parameter import Parameter
 
 OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
                           DiagnosticStatus.STALE)
@@ -34,10 +33,9 @@ class ParameterError(ValueError):
 class Param:
     """One node parameter: its default, what it means, and whether it may change live.
 
-    ``default`` is a value (declared with dynamic typing, so ``1`` is accepted for ``1.0``;
-    the node validates types itself) or a ``Parameter.Type`` for a typed parameter without a
-    usable default (e.g. ``STRING_ARRAY``, whose empty default ROS cannot infer; it reads as
-    ``[]``, or ``None`` for scalars, when not given). ``range`` (lo, hi) and ``choices``
+    ``default`` is a value, declared with dynamic typing (so ``1`` is accepted for ``1.0``;
+    the node validates types itself; an empty list default keeps ``ros2 param get`` working,
+    where a typed array without a default answers nothing). ``range`` (lo, hi) and ``choices``
     are shown by ``ros2 param describe`` (the node's own checks are the authority: an open
     bound such as forgetting in (0, 1] is checked there). A parameter that is not ``live``
     is read-only: it is read once at start, so ``ros2 param set`` is refused rather than
@@ -57,17 +55,14 @@ LIVE_NOTE = ' (live: ros2 param set applies it at once, after validation)'
 
 def parameter_descriptor(name: str, spec: Param) -> ParameterDescriptor:
     """The ROS descriptor of ``spec``: description, range, allowed values, read-only."""
-    typed = isinstance(spec.default, Parameter.Type)
-    d = ParameterDescriptor(name=name, dynamic_typing=not typed, read_only=not spec.live,
+    d = ParameterDescriptor(name=name, dynamic_typing=True, read_only=not spec.live,
                             description=spec.description + (LIVE_NOTE if spec.live
                                                             else READ_ONLY_NOTE))
-    if typed:
-        d.type = spec.default.value
     if spec.choices:
         d.additional_constraints = 'one of: ' + ', '.join(str(c) for c in spec.choices)
     if spec.range is not None:
         lo, hi = spec.range
-        if isinstance(spec.default, float) or spec.default == Parameter.Type.DOUBLE:
+        if isinstance(spec.default, float):
             d.floating_point_range = [FloatingPointRange(from_value=float(lo),
                                                          to_value=float(hi))]
         elif isinstance(spec.default, int) and not isinstance(spec.default, bool):
@@ -86,7 +81,6 @@ def declare_parameters(node, specs: dict) -> dict:
     for name, spec in specs.items():
         if not isinstance(spec, Param):
             raise TypeError(f'parameter {name}: declare it with a Param (default, description)')
-        typed = isinstance(spec.default, Parameter.Type)
         descriptor = parameter_descriptor(name, spec)
         try:
             if not node.has_parameter(name):
@@ -101,14 +95,18 @@ def declare_parameters(node, specs: dict) -> dict:
             raise ParameterError(f'{name} {why}') from None
         except InvalidParameterTypeException as exc:
             raise ParameterError(f'parameter {name}: {exc}') from None
-        try:
-            value = node.get_parameter(name).value
-        except ParameterUninitializedException:      # typed, no default given
-            value = None
-        if value is None and typed:
-            value = [] if 'ARRAY' in spec.default.name else None
-        values[name] = spec.default if value is None and not typed else value
+        values[name] = node.get_parameter(name).value
     return values
+
+
+def number_problem(value, minimum: float = 0.0, strict: bool = True) -> str | None:
+    """Why ``value`` is not a finite number above ``minimum`` (at or above it unless
+    ``strict``), or None: the common check of the nodes' live parameters."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return f'must be a number, got {value!r}'
+    if value < minimum or (strict and value == minimum):
+        return f'must be {">" if strict else ">="} {minimum:g}, got {value}'
+    return None
 
 
 def describe_remaining_parameters(node, descriptions):

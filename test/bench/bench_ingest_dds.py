@@ -45,6 +45,18 @@ def cpu_seconds(pid):
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
+def bench_env() -> dict:
+    """Environment of the benchmark's processes: DDS on this machine (loopback discovery, a
+    domain of the run's own), this checkout importable, unbuffered output."""
+    env = dict(os.environ)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['ROS_STATIC_PEERS'] = ''
+    env.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
+    env['PYTHONPATH'] = os.pathsep.join([str(REPO), env.get('PYTHONPATH', '')])
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
+
+
 # -- publisher process -----------------------------------------------------------------------
 def run_publisher(n, seconds, rate):
     import rclpy
@@ -223,12 +235,7 @@ def main(argv=None):
             return run_publisher(args.collars, args.seconds, args.rate)
         except KeyboardInterrupt:
             return 0
-    env = dict(os.environ)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    env['ROS_STATIC_PEERS'] = ''
-    env.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
-    env['PYTHONPATH'] = os.pathsep.join([str(REPO), env.get('PYTHONPATH', '')])
-    env['PYTHONUNBUFFERED'] = '1'
+    env = bench_env()
     os.environ.update({k: env[k] for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE',
                                            'ROS_STATIC_PEERS', 'ROS_DOMAIN_ID')})
     header = (f'{"executor":>16} {"collars":>7} {"fix/s":>6} {"sent":>7} {"lost->node":>10} '

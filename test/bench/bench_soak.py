@@ -13,8 +13,6 @@ the spread (max − min) over the rest, relative to the median, is the figure re
 """
 import argparse
 import json
-import os
-import random
 import subprocess
 import sys
 import tempfile
@@ -28,7 +26,7 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(HERE))
-from bench_ingest_dds import DATUM, agents_of, cpu_seconds  # noqa: E402
+from bench_ingest_dds import DATUM, agents_of, bench_env, cpu_seconds  # noqa: E402
 
 
 def rss_mib(pid):
@@ -47,12 +45,7 @@ def main(argv=None):
     ap.add_argument('--warmup', type=float, default=120.0,
                     help='seconds of the run left out of the flatness figure')
     args = ap.parse_args(argv)
-    env = dict(os.environ)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    env['ROS_STATIC_PEERS'] = ''
-    env.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
-    env['PYTHONPATH'] = os.pathsep.join([str(REPO), env.get('PYTHONPATH', '')])
-    env['PYTHONUNBUFFERED'] = '1'
+    env = bench_env()
     tmp = Path(tempfile.mkdtemp(prefix='bench_soak_'))
     env['ROS_HOME'] = str(tmp)
     agents = agents_of(args.collars)
