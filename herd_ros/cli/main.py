@@ -48,14 +48,17 @@ VERBS = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(verbs=None) -> argparse.ArgumentParser:
+    """The parser of ``verbs`` (default: all). ``main`` builds only the verb asked for, so
+    a verb pays for its own imports only (``ingest`` does not import the fit machinery)."""
     parser = argparse.ArgumentParser(
         prog='herd-ros',
         description='Learn how a herd moves from GPS data and drive robot fleets with it.',
     )
     sub = parser.add_subparsers(dest='verb', metavar='VERB')
     sub.required = True
-    for verb, module_name in VERBS.items():
+    for verb in (VERBS if verbs is None else verbs):
+        module_name = VERBS[verb]
         module = importlib.import_module(f'herd_ros.cli.{module_name}')
         p = sub.add_parser(verb, help=module.HELP, description=module.HELP,
                            formatter_class=DefaultsHelpFormatter)
@@ -65,8 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    words = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser([words[0]] if words and words[0] in VERBS else None)
+    args = parser.parse_args(words)
     try:
         status = args._run(args)
     except HerdInputError as exc:

@@ -94,9 +94,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
-from filterpy.kalman import KalmanFilter
-from scipy.stats import chi2
 
 from herd_ros.errors import HerdInputError
 
@@ -180,8 +180,9 @@ class FilterParams:
 
     @property
     def gate_threshold(self) -> float:
-        """χ²₂ quantile of ``gate_probability``: the squared Mahalanobis gate."""
-        return float(chi2.ppf(self.gate_probability, df=2))
+        """χ²₂ quantile of ``gate_probability``: the squared Mahalanobis gate (closed form:
+        the χ² CDF with 2 degrees of freedom is ``1 − e^{−x/2}``, so ``x = −2 ln(1 − p)``)."""
+        return float(-2.0 * math.log1p(-self.gate_probability))
 
     def reach(self, tau):
         """``d_max(τ)`` (m): the farthest an animal travels in ``tau`` seconds (module
@@ -358,6 +359,7 @@ class CollarFilter:
         self._gate = params.gate_threshold
         self._gate_sigma = float(np.sqrt(self._gate))
         self._v0 = params.initial_velocity_std or params.max_speed
+        from filterpy.kalman import KalmanFilter   # (imports scipy.stats: 0.8 s; lazily)
         self.kf = KalmanFilter(dim_x=4, dim_z=2)
         self.kf.H = _H.copy()
         self.t = float('nan')

@@ -31,8 +31,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from herd_ros.ingest.collar_bank import AVAILABLE as _COMPILED, predict_states as _compiled
 from herd_ros.ingest.collar_filter import CollarFilter, predict_state
 from herd_ros.trajectory import HerdTrajectory
+
+
+def predict_states(x, P, tau, accel_std, velocity_tau=0.0):
+    """:func:`~herd_ros.ingest.collar_filter.predict_state` over many states: compiled
+    (:func:`herd_ros.ingest.collar_bank.predict_states`) where numba is present."""
+    if _COMPILED and np.ndim(x) == 2:
+        return _compiled(x, P, tau, accel_std, velocity_tau)
+    return predict_state(x, P, tau, accel_std, velocity_tau)
 
 
 def first_tick_index(t: float, dt: float) -> int:
@@ -95,8 +104,8 @@ class StateTimeline:
             return (np.full((n, 4), np.nan), np.full((n, 4, 4), np.nan),
                     np.ones(n, bool), np.zeros(n, bool))
         tau = ticks - self.t[safe]
-        x, P = predict_state(self.x[safe], self.P[safe], tau, self.accel_std,
-                             self.velocity_tau)
+        x, P = predict_states(self.x[safe], self.P[safe], tau, self.accel_std,
+                              self.velocity_tau)
         x[~initialised] = np.nan
         P[~initialised] = np.nan
         stale = ~initialised | (tau > self.stale_after)

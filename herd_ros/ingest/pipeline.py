@@ -27,6 +27,7 @@ Steps (each a module of :mod:`herd_ros.ingest`):
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -34,9 +35,9 @@ import pandas as pd
 from herd_ros.errors import HerdInputError
 from herd_ros.ingest.collar_filter import COUNTERS, CollarFilter, FilterParams, STATUS_NO_FIX
 from herd_ros.ingest.geodesy import geodetic_to_enu
-from herd_ros.ingest.herd_clock import (TimelineRecorder, resample_timelines,
+from herd_ros.ingest import collar_bank
+from herd_ros.ingest.herd_clock import (StateTimeline, TimelineRecorder, resample_timelines,
                                         tick_grid)
-from herd_ros.ingest.smoothing import gaussian_fir, rts_on_ticks
 from herd_ros.io.gps_files import normalise_fixes, read_fix_file, sniff_format
 from herd_ros.trajectory import HerdTrajectory
 
@@ -155,16 +156,38 @@ def is_planar(fixes: pd.DataFrame) -> bool:
     return 'east' in fixes.columns and 'north' in fixes.columns
 
 
+#: the filter implementations of :func:`run_filters`
+ENGINES = ('bank', 'filterpy')
+
+
+@dataclass
+class CollarSummary:
+    """What the offline path keeps of one collar's filter: its parameters, its counters
+    (keys :data:`~herd_ros.ingest.collar_filter.COUNTERS`) and its final time ``t``."""
+
+    params: FilterParams
+    counters: dict
+    t: float
+
+
 def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
-                progress: bool = False):
-    """Run one :class:`CollarFilter` per agent over its fixes in stamp order (``datum``
-    None for a planar table).
+                progress: bool = False, engine: str = 'bank'):
+    """Run every agent's collar filter over its fixes in stamp order (``datum`` None for a
+    planar table).
+
+    ``engine`` ``'bank'``: all collars in one :class:`~herd_ros.ingest.collar_bank.CollarBank`
+    (compiled; the default and the node's). ``'filterpy'``: one
+    :class:`~herd_ros.ingest.collar_filter.CollarFilter` per agent (the reference). Both
+    give the same outcomes and states (to rounding, ~1e-13 m; ``test_collar_bank.py``).
 
     Returns:
-        (filters, timelines, reasons): dicts keyed by agent, and a (len(fixes),) array of
+        (collars, timelines, reasons): dicts keyed by agent (:class:`CollarSummary`,
+        :class:`~herd_ros.ingest.herd_clock.StateTimeline`), and a (len(fixes),) array of
         the outcome of every row (``'accepted'``, ``'reinitialised'`` or the rejection
-        reason), aligned with ``fixes``.
+        reason; None for rows of agents not asked for), aligned with ``fixes``.
     """
+    if engine not in ENGINES:
+        raise HerdInputError(f'engine must be one of {", ".join(ENGINES)}, got {engine!r}')
     if is_planar(fixes):
         e, n = fixes['east'].to_numpy(float), fixes['north'].to_numpy(float)
     else:
@@ -179,14 +202,16 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
     cov[:, 0] = fixes['cov_ee'].to_numpy(float)
     cov[:, 1] = cov[:, 3] = fixes['cov_en'].to_numpy(float)
     cov[:, 4] = fixes['cov_nn'].to_numpy(float)
-    agents = sorted(set(fixes['agent'])) if agents is None else list(agents)
+    agent_col = fixes['agent'].to_numpy(dtype=object)
+    agents = sorted(pd.unique(agent_col)) if agents is None else list(agents)
+    if engine == 'bank' and collar_bank.AVAILABLE:
+        return _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progress)
     reasons = np.empty(len(fixes), dtype=object)
-    filters, timelines = {}, {}
+    collars, timelines = {}, {}
     bar = None
     if progress:
         from tqdm import tqdm
         bar = tqdm(total=len(fixes), desc='filtering', unit='fix', leave=False)
-    agent_col = fixes['agent'].to_numpy()
     for agent in agents:
         rows = np.flatnonzero(agent_col == agent)
         rows = rows[np.argsort(t[rows], kind='stable')]
@@ -197,19 +222,64 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
                            position_covariance_type=cov_type[k])
             reasons[k] = res.reason
             rec.record()
-        filters[agent], timelines[agent] = f, rec.timeline()
+        collars[agent] = CollarSummary(params, dict(f.counters), f.t)
+        timelines[agent] = rec.timeline()
         if bar is not None:
             bar.update(len(rows))
     if bar is not None:
         bar.close()
-    return filters, timelines, reasons
+    return collars, timelines, reasons
+
+
+def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progress,
+              chunk: int = 200_000):
+    """:func:`run_filters` on a :class:`~herd_ros.ingest.collar_bank.CollarBank`: every
+    fix of the asked agents, sorted by agent then stamp (stable, as the reference)."""
+    ids, uniques = pd.factorize(agent_col)
+    codes = pd.Index(agents).get_indexer(uniques)[ids]
+    rows = np.flatnonzero(codes >= 0)
+    rows = rows[np.lexsort((t[rows], codes[rows]))]
+    bank = collar_bank.CollarBank(len(agents), params)
+    R = bank.measurement_covariances(cov_type[rows], cov[rows])
+    outcome = np.empty(len(rows), np.int8)
+    xs = np.empty((len(rows), 4))
+    Ps = np.empty((len(rows), 4, 4))
+    seg = np.empty(len(rows), np.int64)
+    bar = None
+    if progress and len(rows) > chunk:
+        from tqdm import tqdm
+        bar = tqdm(total=len(rows), desc='filtering', unit='fix', leave=False)
+    for s in range(0, len(rows), chunk):
+        sl = slice(s, s + chunk)
+        r = rows[sl]
+        b = bank.process(codes[r], t[r], e[r], n[r], status[r], R[sl])
+        outcome[sl], xs[sl], Ps[sl], seg[sl] = b.outcome, b.x, b.P, b.segment
+        if bar is not None:
+            bar.update(len(r))
+    if bar is not None:
+        bar.close()
+    names = np.array(collar_bank.OUTCOMES, dtype=object)
+    reasons = np.full(len(t), None, dtype=object)
+    reasons[rows] = names[outcome]
+    accepted = outcome <= collar_bank.REINITIALISED
+    who = codes[rows]
+    collars, timelines = {}, {}
+    bounds = np.searchsorted(who, np.arange(len(agents) + 1))   # rows sorted by agent
+    for i, agent in enumerate(agents):
+        sl = slice(bounds[i], bounds[i + 1])
+        keep = accepted[sl]
+        timelines[agent] = StateTimeline(t[rows[sl]][keep], xs[sl][keep], Ps[sl][keep],
+                                         params.accel_std, params.stale_after,
+                                         seg[sl][keep], params.velocity_tau)
+        collars[agent] = CollarSummary(params, bank.counter_dict(i), float(bank.t[i]))
+    return collars, timelines, reasons
 
 
 def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=None,
                           smoother: str = 'none',
                           *, agents=None, trim: bool = True, progress: bool = False,
                           fir_taps: int = 30, fir_sigma: float = 6.0,
-                          **filter_params) -> HerdTrajectory:
+                          engine: str = 'bank', **filter_params) -> HerdTrajectory:
     """Filtered, synchronized herd trajectory from a fixes table.
 
     Args:
@@ -223,6 +293,8 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
         trim: cut to the ticks where every agent has an estimate and drop trailing stale
             ticks (see the module docstring); False keeps the whole clock with NaN.
         fir_taps, fir_sigma: the FIR's n and σ (steps).
+        engine: ``'bank'`` (compiled, default) or ``'filterpy'`` (the reference); see
+            :func:`run_filters`.
         **filter_params: :class:`FilterParams` fields (accel_std, default_position_std,
             gate_probability, max_speed, stale_after, ...); None or absent
             ``stale_after`` and ``reinit_after_gap`` come from the data
@@ -255,9 +327,9 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     else:
         datum = choose_datum(fixes, datum)
         log.info('datum lat %.9f lon %.9f alt %.3f', *datum)
-    filters, timelines, reasons = run_filters(fixes, datum, params, agents, progress)
-    agents = list(filters)
-    counters = {a: dict(filters[a].counters) for a in agents}
+    collars, timelines, reasons = run_filters(fixes, datum, params, agents, progress, engine)
+    agents = list(collars)
+    counters = {a: dict(collars[a].counters) for a in agents}
     empty = [a for a in agents if len(timelines[a].t) == 0]
     if empty:
         raise HerdInputError(f'agent(s) {", ".join(empty)} have no usable fix (all rejected: '
@@ -278,6 +350,7 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
         trail = len(ticks) - 1 - last
         traj = _slice(traj, lead, last + 1)
     if smoother == 'rts':
+        from herd_ros.ingest.smoothing import rts_on_ticks
         for i, a in enumerate(agents):
             x, P = rts_on_ticks(timelines[a], traj.times)
             traj.positions[:, i] = x[:, :2]
@@ -285,6 +358,7 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
             traj.meta['position_cov'][:, i] = P[:, :2, :2]
             traj.meta['state_cov'][:, i] = P
     elif smoother == 'fir':
+        from herd_ros.ingest.smoothing import gaussian_fir
         if not np.isfinite(traj.positions).all():
             raise HerdInputError('the FIR smoother needs every agent at every tick; use '
                                  'trim=True')

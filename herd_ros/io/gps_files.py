@@ -64,11 +64,16 @@ def _fail(path, msg):
     raise HerdInputError(f'{path}: {msg}')
 
 
-def _read_csv(path) -> pd.DataFrame:
+def _read_csv(path, text_columns=()) -> pd.DataFrame:
+    """The CSV after :func:`check_csv_text`; numeric columns parsed by pandas' C reader
+    (a column with any text left as strings, which :func:`_numeric` and
+    :func:`parse_times` then check cell by cell); ``text_columns`` always as strings."""
     path = Path(path)
     check_csv_text(path)
     try:
-        df = pd.read_csv(path, dtype=str, skipinitialspace=True, keep_default_na=True)
+        header = pd.read_csv(path, nrows=0, skipinitialspace=True).columns
+        text = {c: str for c in header if str(c).strip() in text_columns}
+        df = pd.read_csv(path, dtype=text, skipinitialspace=True, keep_default_na=True)
     except Exception as exc:
         _fail(path, f'not a readable CSV ({exc.__class__.__name__}: {exc})'.splitlines()[0])
     df.columns = [str(c).strip() for c in df.columns]
@@ -80,6 +85,14 @@ def _read_csv(path) -> pd.DataFrame:
 def _numeric(path, df, col, *, allow_nan: bool, out_name: str | None = None):
     """Column ``col`` as floats; a non-number (or NaN when not allowed) names its line."""
     raw = df[col]
+    if pd.api.types.is_numeric_dtype(raw) and not pd.api.types.is_bool_dtype(raw):
+        values = raw.to_numpy(dtype=float)
+        bad = np.zeros(len(values), bool) if allow_nan else ~np.isfinite(values)
+        if bad.any():
+            k = int(np.argmax(bad))
+            _fail(path, f'line {k + 2}: {out_name or col} is {raw.iloc[k]!r}, not a number')
+        return values
+    raw = raw.astype(object).where(raw.notna(), None)
     values = pd.to_numeric(raw, errors='coerce').to_numpy(dtype=float)
     bad = np.isnan(values) & raw.notna().to_numpy() if allow_nan else ~np.isfinite(values)
     if allow_nan:
@@ -94,6 +107,8 @@ def _numeric(path, df, col, *, allow_nan: bool, out_name: str | None = None):
 
 def parse_times(path, raw: pd.Series, field: str = 'time') -> np.ndarray:
     """Epoch seconds from epoch numbers or ISO-8601 strings (naive = UTC)."""
+    if not (pd.api.types.is_numeric_dtype(raw) and not pd.api.types.is_bool_dtype(raw)):
+        raw = raw.astype(object).where(raw.notna(), None)
     numeric = pd.to_numeric(raw, errors='coerce')
     values = numeric.to_numpy(dtype=float, copy=True)
     text = ~numeric.notna().to_numpy()
@@ -116,7 +131,7 @@ def parse_times(path, raw: pd.Series, field: str = 'time') -> np.ndarray:
 
 def read_gps_csv(path) -> pd.DataFrame:
     """A GPS CSV (``time,agent,lat,lon[,alt]``) as a fixes table."""
-    df = _read_csv(path)
+    df = _read_csv(path, text_columns=('agent',))
     missing = [c for c in ('time', 'agent', 'lat', 'lon') if c not in df.columns]
     if missing:
         _fail(path, f'missing column(s) {", ".join(missing)}; a GPS CSV needs the header '
@@ -124,7 +139,7 @@ def read_gps_csv(path) -> pd.DataFrame:
     empty = df['agent'].isna().to_numpy()
     if empty.any():
         _fail(path, f'line {int(np.argmax(empty)) + 2}: empty agent')
-    out = pd.DataFrame({'time': parse_times(path, df['time']), 'agent': df['agent'].str.strip()})
+    out = pd.DataFrame({'time': parse_times(path, df['time']), 'agent': _ids(df['agent'])})
     for col in ('lat', 'lon'):
         out[col] = _numeric(path, df, col, allow_nan=True)
     _check_ranges(path, out)
@@ -132,6 +147,13 @@ def read_gps_csv(path) -> pd.DataFrame:
         if col in df.columns:
             out[col] = _numeric(path, df, col, allow_nan=True)
     return normalise_fixes(out)
+
+
+def _ids(raw: pd.Series) -> np.ndarray:
+    """Agent ids, stripped: each distinct id once (a herd has few ids and many rows)."""
+    codes, uniques = pd.factorize(raw, use_na_sentinel=False)
+    stripped = np.array([str(u).strip() for u in uniques], dtype=object)
+    return stripped[codes]
 
 
 def _check_ranges(path, out, lat='lat', lon='lon'):
@@ -146,7 +168,7 @@ def _check_ranges(path, out, lat='lat', lon='lon'):
 def read_movebank_csv(path) -> pd.DataFrame:
     """A Movebank export (``timestamp, location-long, location-lat,
     individual-local-identifier``) as a fixes table."""
-    df = _read_csv(path)
+    df = _read_csv(path, text_columns=('individual-local-identifier', 'timestamp'))
     missing = [c for c in MOVEBANK_COLUMNS if c not in df.columns]
     if missing:
         _fail(path, f'missing Movebank column(s) {", ".join(missing)}')
@@ -154,7 +176,7 @@ def read_movebank_csv(path) -> pd.DataFrame:
     if empty.any():
         _fail(path, f'line {int(np.argmax(empty)) + 2}: empty individual-local-identifier')
     out = pd.DataFrame({'time': parse_times(path, df['timestamp'], 'timestamp'),
-                        'agent': df['individual-local-identifier'].str.strip()})
+                        'agent': _ids(df['individual-local-identifier'])})
     out['lat'] = _numeric(path, df, 'location-lat', allow_nan=True)
     out['lon'] = _numeric(path, df, 'location-long', allow_nan=True)
     _check_ranges(path, out, 'location-lat', 'location-long')
