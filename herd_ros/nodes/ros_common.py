@@ -20,6 +20,10 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 SetParametersResult)
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
+from herd_ros import process_exit
+
+#: the nodes end their process with it (:func:`herd_ros.process_exit.exit_process`)
+exit_process = process_exit.exit_process
 
 OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
                           DiagnosticStatus.STALE)
@@ -352,21 +356,3 @@ def _teardown_watchdog():
     timer.start()
 
 
-def exit_process(code: int):
-    """End a node's process with ``code`` once :func:`run_node` has shut everything down.
-
-    The node, its DDS entities and the context are already destroyed and every file it
-    writes is closed; what remains is the interpreter tearing down numpy, scipy, numba and
-    pandas module by module, which takes 0.1-0.3 s per process, 0.6-1 s when a whole graph
-    stops at once on two cores (measured). So: flush, run the ``atexit`` handlers, and
-    leave at once (``os._exit``), keeping a stop within the second ``ros2 launch`` allows.
-    """
-    import atexit
-    import os
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
-    atexit._run_exitfuncs()
-    os._exit(int(code))

@@ -1,22 +1,33 @@
-"""Offline ingest throughput (fixes/s): GPS fixes -> ENU -> collar filters -> herd clock.
+"""Offline ingest speed (issue 12, acceptance 1), in one run on the same fixes.
 
-Synthetic herds at 1 Hz for one hour (3 m noise, 1 % jumps of 50 m), through
-:func:`herd_ros.ingest.pipeline.trajectory_from_fixes`; medians over repeats.
+1. **Whole processes** on 360 000 fixes (200 collars × 30 min at 1 Hz, 3 m noise, 1 % jumps
+   of 50 m, a GPS CSV): ``herd-ros ingest FIXES -o OUT --dt 1`` (the installed console
+   script) against the plain filterpy loop of ``plain_filterpy_loop.py``, each timed from
+   process start to exit, median of 3 (after one ingest run that fills numba's on-disk
+   cache; that first run is reported too).
+2. **The core alone**: :class:`herd_ros.ingest.collar_bank.CollarBank` on 3.6 M fixes
+   (1 000 collars × 1 h at 1 Hz): measurement covariances + the compiled filter loop,
+   fixes per second, median of 3.
+3. :func:`trajectory_from_fixes` in process, per smoother (fixes/s).
 
-    .venv/bin/python test/bench/bench_ingest.py
+    .venv/bin/python test/bench/bench_ingest.py [--quick]
 """
+import argparse
+import os
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parents[1]))
 
 from herd_ros.ingest.geodesy import enu_to_geodetic  # noqa: E402
-from herd_ros.ingest.pipeline import trajectory_from_fixes  # noqa: E402
 
 DATUM = (27.0153, -108.7937, 100.0)
 
@@ -37,9 +48,79 @@ def herd(n_agents, seconds, seed=0):
     return pd.concat(frames).sort_values('time').reset_index(drop=True)
 
 
-def main():
-    cases = [(10, 3600, 'none', 5), (10, 3600, 'rts', 5), (10, 3600, 'fir', 5),
+def herd_ros_command():
+    script = Path(sys.executable).with_name('herd-ros')
+    return [str(script)] if script.exists() else [sys.executable, '-m', 'herd_ros.cli.main']
+
+
+def timed(cmd):
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return time.perf_counter() - t0
+
+
+def whole_processes(repeats):
+    with tempfile.TemporaryDirectory() as tmp:
+        src = Path(tmp) / 'fixes.csv'
+        fixes = herd(200, 1800)
+        fixes.to_csv(src, index=False, float_format='%.9f')
+        ingest = herd_ros_command() + ['ingest', str(src), '-o', str(Path(tmp) / 'a.csv'),
+                                       '--dt', '1']
+        plain = [sys.executable, str(HERE / 'plain_filterpy_loop.py'), str(src),
+                 str(Path(tmp) / 'b.csv')]
+        first = timed(ingest)
+        ours = [timed(ingest) for _ in range(repeats)]
+        base = [timed(plain) for _ in range(repeats)]
+    mo, mb = statistics.median(ours), statistics.median(base)
+    print(f'whole processes on {len(fixes)} fixes (200 collars x 30 min at 1 Hz), median of '
+          f'{repeats}:')
+    print(f'  herd-ros ingest           {mo:7.2f} s  ({len(fixes) / mo:9.0f} fixes/s; '
+          f'first run, numba cache cold or warm: {first:.2f} s)')
+    print(f'  plain filterpy loop       {mb:7.2f} s  ({len(fixes) / mb:9.0f} fixes/s)')
+    print(f'  speed-up                  {mb / mo:7.1f} x')
+
+
+def core(repeats, n=1000, seconds=3600):
+    from herd_ros.ingest.collar_bank import CollarBank
+    from herd_ros.ingest.collar_filter import FilterParams
+
+    rng = np.random.default_rng(0)
+    t = (1.7e9 + np.arange(seconds)[:, None] + rng.uniform(0, 0.2, (seconds, n))).reshape(-1)
+    idx = np.tile(np.arange(n), seconds)
+    p = (np.cumsum(rng.normal(0, 0.3, (seconds, n, 2)), axis=0).reshape(-1, 2)
+         + rng.normal(0, 3, (seconds * n, 2)))
+    jump = rng.random(len(t)) < 0.01
+    p[jump] += 50
+    status = np.zeros(len(t), np.int64)
+    ctype = np.zeros(len(t), np.int64)
+    cov = np.full((len(t), 9), np.nan)
+    params = FilterParams(accel_std=0.05, velocity_tau=120.0, stale_after=30.0)
+    CollarBank(n, params).process(idx[:10], t[:10], p[:10, 0], p[:10, 1], status[:10],
+                                  np.tile(25 * np.eye(2), (10, 1, 1)))    # load the kernel
+    times = []
+    chunk = 500_000
+    for _ in range(repeats):
+        bank = CollarBank(n, params)
+        t0 = time.perf_counter()
+        for s in range(0, len(t), chunk):
+            sl = slice(s, s + chunk)
+            R = bank.measurement_covariances(ctype[sl], cov[sl])
+            bank.process(idx[sl], t[sl], p[sl, 0], p[sl, 1], status[sl], R)
+        times.append(time.perf_counter() - t0)
+    med = statistics.median(times)
+    print(f'core alone (CollarBank: covariances + filter), {len(t)} fixes ({n} collars x '
+          f'{seconds / 3600:g} h at 1 Hz), median of {repeats}: {med:.2f} s = '
+          f'{len(t) / med:,.0f} fixes/s')
+
+
+def in_process(quick):
+    from herd_ros.ingest.pipeline import trajectory_from_fixes
+
+    cases = [(10, 3600, 'none', 5), (10, 3600, 'rts', 3), (10, 3600, 'fir', 5),
              (100, 3600, 'none', 3)]
+    if quick:
+        cases = cases[:1]
+    print('trajectory_from_fixes in process (fixes -> ENU -> filters -> clock -> smoother):')
     print(f'{"collars":>8} {"hours":>6} {"smoother":>9} {"fixes":>9} {"median s":>9} '
           f'{"fixes/s":>10}')
     for n, secs, smoother, repeats in cases:
@@ -52,8 +133,18 @@ def main():
         med = statistics.median(times)
         print(f'{n:>8} {secs / 3600:>6.1f} {smoother:>9} {len(fixes):>9} {med:>9.2f} '
               f'{len(fixes) / med:>10.0f}', flush=True)
-    print('medians of 5 repeats (3 for 100 collars); reproduce with: '
-          '.venv/bin/python test/bench/bench_ingest.py')
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--quick', action='store_true', help='one repeat, fewer cases')
+    args = ap.parse_args(argv)
+    repeats = 1 if args.quick else 3
+    os.environ.setdefault('PYTHONUNBUFFERED', '1')
+    whole_processes(repeats)
+    core(repeats)
+    in_process(args.quick)
+    print('reproduce with: .venv/bin/python test/bench/bench_ingest.py')
 
 
 if __name__ == '__main__':
