@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 
 from herd_ros.ingest.collar_filter import CollarFilter, FilterParams
-from herd_ros.ingest.herd_clock import (HerdClock, TimelineRecorder, resample_timelines,
-                                        tick_grid)
+from herd_ros.ingest.collar_bank import CollarBank
+from herd_ros.ingest.herd_clock import (BatchHerdClock, HerdClock, TimelineRecorder,
+                                        resample_timelines, tick_grid)
 from herd_ros.ingest.smoothing import gaussian_fir, gaussian_fir_taps, rts_on_ticks
 
 AGENTS = ['a', 'b', 'c']
@@ -65,6 +66,42 @@ def streaming(fixes, dt):
         emitted_at += [t] * len(new)
     snaps += clock.flush()
     return snaps, emitted_at
+
+
+def batch_streaming(fixes, dt, batch, depth=8):
+    """The node's path: a CollarBank and a BatchHerdClock fed ``batch`` fixes at a time."""
+    bank = CollarBank(len(AGENTS), PARAMS)
+    clock = BatchHerdClock(AGENTS, dt, PARAMS.stale_after, PARAMS.accel_std,
+                           PARAMS.velocity_tau, depth=depth)
+    snaps = []
+    for s in range(0, len(fixes), batch):
+        chunk = fixes[s:s + batch]
+        t = np.array([f[0] for f in chunk])
+        idx = np.array([AGENTS.index(f[1]) for f in chunk])
+        e = np.array([f[2] for f in chunk])
+        n = np.array([f[3] for f in chunk])
+        status = np.array([f[4] for f in chunk])
+        R = bank.measurement_covariances(np.zeros(len(chunk)), np.zeros((len(chunk), 9)))
+        b = bank.process(idx, t, e, n, status, R)
+        snaps += clock.observe(idx, t, b.accepted, b.x, b.P)
+    return snaps + clock.flush()
+
+
+@pytest.mark.parametrize('batch,depth', [(1, 8), (7, 2), (64, 8)])
+def test_batch_clock_equals_offline(batch, depth):
+    """Fixes one at a time or in batches (rings that must grow included): the snapshots of
+    the offline resampling."""
+    fixes = herd_fixes(1)
+    traj, _ = offline(fixes, 2.5)
+    snaps = batch_streaming(fixes, 2.5, batch, depth)
+    np.testing.assert_array_equal([s.time for s in snaps], traj.times)
+    np.testing.assert_allclose(np.array([s.positions for s in snaps]), traj.positions,
+                               atol=1e-9, equal_nan=True)
+    np.testing.assert_allclose(np.array([s.position_cov for s in snaps]),
+                               traj.meta['position_cov'], atol=1e-9, equal_nan=True)
+    np.testing.assert_array_equal(np.array([s.stale for s in snaps]), traj.meta['stale'])
+    np.testing.assert_array_equal(np.array([s.initialised for s in snaps]),
+                                  traj.meta['initialised'])
 
 
 @pytest.mark.parametrize('dt', [1.0, 2.5])

@@ -311,3 +311,169 @@ class HerdClock:
                     x[i] = np.nan
         return HerdSnapshot(tick, list(self.agents), x[:, :2].copy(), x[:, 2:].copy(),
                             P[:, :2, :2].copy(), stale, init)
+
+
+class BatchHerdClock:
+    """The streaming herd clock of a :class:`~herd_ros.ingest.collar_bank.CollarBank`,
+    fed a batch of fixes at a time (the ``gps_ingest`` node); O(collars) compiled work per
+    tick instead of a Python loop over the collars.
+
+    The rules are those of :class:`HerdClock` (module docstring): tick t is emitted once
+    every collar has reported (any fix) at or after t, or has been silent for more than
+    ``stale_after`` seconds of herd data time; a collar's value at t is its state after the
+    last accepted fix at or before t, predicted to t, NaN when stale. Readiness is checked
+    after each batch rather than after each fix, so a fix that arrives in the same batch
+    as the fixes completing a tick is already known when the tick is emitted (as offline).
+
+    Each collar keeps the accepted states the clock may still need in a small ring
+    (states superseded for the next tick are dropped; the ring doubles if a collar runs
+    far ahead of a lagging one).
+
+    Args:
+        agents: collar ids in snapshot order (index i = the bank's collar i).
+        dt: clock step (s).
+        stale_after: staleness horizon (s).
+        accel_std, velocity_tau: the motion model that carries states to the ticks.
+    """
+
+    def __init__(self, agents, dt: float, stale_after: float, accel_std: float,
+                 velocity_tau: float = 0.0, depth: int = 8):
+        if not dt > 0:
+            raise ValueError(f'dt must be positive, got {dt!r}')
+        self.agents = list(agents)
+        n = len(self.agents)
+        self.dt = float(dt)
+        self.stale_after = float(stale_after)
+        self.accel_std = float(accel_std)
+        self.velocity_tau = float(velocity_tau)
+        self.reported = np.full(n, -np.inf)
+        self.herd_time = -math.inf
+        self._next_k: int | None = None
+        self._first_stamp = -math.inf
+        self.count = np.zeros(n, np.int64)
+        self.rt = np.full((n, depth), np.nan)
+        self.rx = np.zeros((n, depth, 4))
+        self.rP = np.zeros((n, depth, 4, 4))
+
+    @property
+    def next_tick(self) -> float | None:
+        return None if self._next_k is None else self._next_k * self.dt
+
+    def observe(self, collar, stamp, accepted, x, P) -> list[HerdSnapshot]:
+        """Take note of a batch of fixes (all of them, accepted or not, in arrival order)
+        after the bank processed it: ``collar`` (M,), ``stamp`` (M,), ``accepted`` (M,)
+        and the states after the accepted ones ``x`` (M, 4), ``P`` (M, 4, 4). Returns the
+        snapshots completed (oldest first)."""
+        collar = np.asarray(collar, dtype=np.int64)
+        stamp = np.asarray(stamp, dtype=float)
+        finite = np.isfinite(stamp)
+        if not finite.any():
+            return []
+        if self._next_k is None:
+            first = float(stamp[np.argmax(finite)])
+            self._next_k = first_tick_index(first, self.dt)
+            self._first_stamp = first
+        keep = np.asarray(accepted, bool) & finite
+        rows = np.flatnonzero(keep)
+        while len(rows):
+            done = _record_states(collar[rows], stamp[rows], np.ascontiguousarray(x[rows]),
+                                  np.ascontiguousarray(P[rows]), self.next_tick, self.count,
+                                  self.rt, self.rx, self.rP)
+            if done == len(rows):
+                break
+            self._grow()
+            rows = rows[done:]
+        np.maximum.at(self.reported, collar[finite], stamp[finite])
+        self.herd_time = max(self.herd_time, float(stamp[finite].max()))
+        return self._emit(final=False)
+
+    def flush(self) -> list[HerdSnapshot]:
+        """End of data: emit every remaining tick up to the latest stamp seen."""
+        return self._emit(final=True)
+
+    def _grow(self):
+        n, depth = self.rt.shape
+        rt = np.full((n, 2 * depth), np.nan)
+        rx = np.zeros((n, 2 * depth, 4))
+        rP = np.zeros((n, 2 * depth, 4, 4))
+        rt[:, :depth], rx[:, :depth], rP[:, :depth] = self.rt, self.rx, self.rP
+        self.rt, self.rx, self.rP = rt, rx, rP
+
+    def _ready(self, tick: float) -> bool:
+        if tick > self.herd_time:
+            return False
+        silent = (self.herd_time - np.maximum(self.reported, self._first_stamp)
+                  > self.stale_after)
+        return bool(np.all((self.reported >= tick) | (silent & (tick < self.herd_time))))
+
+    def _emit(self, final: bool) -> list[HerdSnapshot]:
+        out = []
+        if self._next_k is None:
+            return out
+        while True:
+            tick = self._next_k * self.dt
+            if tick > self.herd_time or not (final or self._ready(tick)):
+                break
+            out.append(self.snapshot(tick))
+            self._next_k += 1
+        return out
+
+    def snapshot(self, tick: float) -> HerdSnapshot:
+        """Every collar at ``tick`` from the states kept (see the class docstring)."""
+        n = len(self.agents)
+        x = np.empty((n, 4))
+        P = np.empty((n, 4, 4))
+        stale = np.empty(n, np.bool_)
+        init = np.empty(n, np.bool_)
+        _snapshot(float(tick), self.count, self.rt, self.rx, self.rP, self.accel_std,
+                  self.velocity_tau, self.stale_after, x, P, stale, init)
+        return HerdSnapshot(float(tick), list(self.agents), x[:, :2].copy(), x[:, 2:].copy(),
+                            P[:, :2, :2].copy(), stale, init)
+
+
+from herd_ros.ingest.collar_bank import _jit, _predict  # noqa: E402
+
+
+@_jit
+def _record_states(collar, stamp, x, P, next_tick, count, rt, rx, rP):
+    """Append each accepted state to its collar's ring, first dropping the states no
+    longer needed (superseded by a later one at or before ``next_tick``); returns how many
+    were stored (fewer: a ring is full of needed states and must grow)."""
+    depth = rt.shape[1]
+    for m in range(collar.shape[0]):
+        i = collar[m]
+        while count[i] >= 2 and rt[i, 1] <= next_tick:
+            for k in range(count[i] - 1):
+                rt[i, k] = rt[i, k + 1]
+                rx[i, k] = rx[i, k + 1]
+                rP[i, k] = rP[i, k + 1]
+            count[i] -= 1
+        if count[i] == depth:
+            return m
+        k = count[i]
+        rt[i, k] = stamp[m]
+        rx[i, k] = x[m]
+        rP[i, k] = P[m]
+        count[i] = k + 1
+    return collar.shape[0]
+
+
+@_jit
+def _snapshot(tick, count, rt, rx, rP, accel_std, velocity_tau, stale_after, x, P, stale,
+              init):
+    for i in range(count.shape[0]):
+        k = count[i] - 1
+        while k >= 0 and rt[i, k] > tick:
+            k -= 1
+        if k < 0:
+            x[i] = np.nan
+            P[i] = np.nan
+            stale[i] = True
+            init[i] = False
+            continue
+        tau = tick - rt[i, k]
+        _predict(rx[i, k], rP[i, k], tau, accel_std, velocity_tau, x[i], P[i])
+        init[i] = True
+        stale[i] = tau > stale_after
+        if stale[i]:
+            x[i] = np.nan

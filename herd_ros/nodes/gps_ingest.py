@@ -20,12 +20,16 @@ parameter. Publishes
   was rejected since the last report or the collar is stale, OK otherwise — and one for the
   node (datum, herd time, ticks published, message errors).
 
-The numerics are the offline path's (:mod:`herd_ros.ingest.pipeline`), fix by fix:
-:func:`~herd_ros.ingest.geodesy.geodetic_to_enu` (NaN altitude -> the datum's),
-:class:`~herd_ros.ingest.collar_filter.CollarFilter` (rejection reasons ``no_fix``, ``nan``,
-``time``, ``speed``, ``gate``) and the streaming :class:`~herd_ros.ingest.herd_clock.HerdClock`
-in data time (header stamps, never wall time). Fed the same fixes in stamp order, the node
-publishes the snapshots of ``trajectory_from_fixes(..., smoother='none', trim=False)``.
+The numerics are the offline path's (:mod:`herd_ros.ingest.pipeline`): the subscription
+callbacks only convert each NavSatFix to numbers at the edge; every ``batch_period_s`` (5 ms
+of wall time) the fixes received are handed at once to
+:func:`~herd_ros.ingest.geodesy.geodetic_to_enu` (NaN altitude -> the datum's), the compiled
+:class:`~herd_ros.ingest.collar_bank.CollarBank` (the filter of every collar in arrays;
+rejection reasons ``no_fix``, ``nan``, ``time``, ``speed``, ``gate``, ``unconfirmed``) and the
+streaming :class:`~herd_ros.ingest.herd_clock.BatchHerdClock` in data time (header stamps,
+never wall time). A tick costs O(collars) compiled work, not a Python loop over the collars.
+Fed the same fixes in stamp order, the node publishes the snapshots of
+``trajectory_from_fixes(..., smoother='none', trim=False)``.
 
 Datum: the ``datum`` parameter, or (empty) the earliest-stamped *valid* fix (status not
 NO_FIX, finite lat/lon) — chosen by :func:`~herd_ros.ingest.pipeline.choose_datum`, the
@@ -58,9 +62,10 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import NavSatFix
 
 from herd_ros.errors import HerdInputError
-from herd_ros.ingest.collar_filter import COUNTERS, STATUS_NO_FIX, CollarFilter, FilterParams
+from herd_ros.ingest.collar_bank import OUTCOMES, CollarBank
+from herd_ros.ingest.collar_filter import COUNTERS, STATUS_NO_FIX, FilterParams
 from herd_ros.ingest.geodesy import geodetic_to_enu
-from herd_ros.ingest.herd_clock import HerdClock, HerdSnapshot
+from herd_ros.ingest.herd_clock import BatchHerdClock, HerdSnapshot
 from herd_ros.ingest.pipeline import choose_datum
 from herd_ros.model.model_file import check_agent_id
 from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
@@ -114,6 +119,8 @@ DEFAULTS = {
                                       'clock is rejected', range=(1e-3, 1e12)),
     'max_clock_jump_s': Param(3600.0, 'a forward jump of data time larger than this (s) '
                                       'restarts the herd clock', range=(1e-3, 1e12)),
+    'batch_period_s': Param(0.005, 'fixes are filtered in batches every this many s (wall '
+                                   'time); 0 = each fix as it arrives', range=(0.0, 1.0)),
     'executor': Param('events', 'rclpy executor', choices=EXECUTORS),
     'fix_queue_depth': Param(50, 'history depth of each /herd/<agent>/fix subscription',
                              range=(1, 100000)),
@@ -175,6 +182,7 @@ class GpsIngestConfig:
             raise ParameterError(f'executor must be one of {", ".join(EXECUTORS)}, got '
                                  f'{p["executor"]!r}')
         self.executor = p['executor']
+        self.batch_period_s = _number(p, 'batch_period_s')
         depth = p['fix_queue_depth']
         if isinstance(depth, bool) or not isinstance(depth, int) or depth < 1:
             raise ParameterError(f'fix_queue_depth must be an integer ≥ 1, got {depth!r}')
@@ -196,11 +204,11 @@ def fix_is_valid(status: int, lat: float, lon: float) -> bool:
     return int(status) != STATUS_NO_FIX and math.isfinite(lat) and math.isfinite(lon)
 
 
-def odometry_from_filter(collar_filter: CollarFilter, agent: str, frame_id: str) -> Odometry:
-    """Odometry of a filter state at its time ``t``: ENU pose/twist with covariance."""
-    x, P = collar_filter.x, collar_filter.P
+def odometry_from_state(t: float, x, P, agent: str, frame_id: str) -> Odometry:
+    """Odometry of a filter state ``x`` (4,), ``P`` (4, 4) at data time ``t``: ENU
+    pose/twist with covariance."""
     msg = Odometry()
-    msg.header.stamp = seconds_to_stamp(collar_filter.t)
+    msg.header.stamp = seconds_to_stamp(t)
     msg.header.frame_id = frame_id
     msg.child_frame_id = agent
     msg.pose.pose.position.x = float(x[0])
@@ -211,6 +219,18 @@ def odometry_from_filter(collar_filter: CollarFilter, agent: str, frame_id: str)
     msg.pose.covariance = _covariance6(P[:2, :2])
     msg.twist.covariance = _covariance6(P[2:, 2:])
     return msg
+
+
+#: what a rejection means, for diagnostics and logs
+REJECTION_TEXT = {
+    'no_fix': 'status is STATUS_NO_FIX',
+    'nan': 'latitude or longitude is not finite',
+    'time': 'stamp not after the last fix (time going backwards, or a duplicate)',
+    'speed': 'beyond reach of the track (max_speed, cruise_speed, sprint_s): an outlier '
+             'unless more follow',
+    'gate': 'outside the Mahalanobis gate',
+    'unconfirmed': 'track lost or not started: waiting for consistent fixes',
+}
 
 
 def _covariance6(block2) -> np.ndarray:
@@ -242,8 +262,10 @@ class GpsIngest(Node):
     def __init__(self):
         super().__init__('gps_ingest')
         self.cfg = cfg = GpsIngestConfig(declare_parameters(self, DEFAULTS))
-        self.filters = {a: CollarFilter(cfg.filter_params) for a in cfg.agents}
-        self.clock = HerdClock(cfg.agents, cfg.dt, cfg.filter_params.stale_after)
+        self.bank = CollarBank(len(cfg.agents), cfg.filter_params)
+        self.clock = self._new_clock()
+        self._index = {a: i for i, a in enumerate(cfg.agents)}
+        self._inbox: list[tuple] = []               # fixes waiting for the next batch
         self.datum = cfg.datum
         self._pending: list[tuple] = []            # fixes held until the datum is chosen
         self._pending_valid: dict[str, float] = {}  # agent -> first valid stamp held
@@ -264,6 +286,8 @@ class GpsIngest(Node):
             self.create_subscription(NavSatFix, f'/herd/{a}/fix',
                                      lambda msg, a=a: self.on_fix(a, msg), cfg.fix_qos)
         wall_timer(self, cfg.diagnostics_period_s, self.publish_diagnostics)
+        if cfg.batch_period_s > 0:
+            wall_timer(self, cfg.batch_period_s, self.drain)
         self.executor_kind = cfg.executor        # run_node builds it
         describe_remaining_parameters(self, 'not a gps_ingest parameter (ignored)')
         LiveParameters(self, self._validate_live, self._apply_live)
@@ -289,10 +313,10 @@ class GpsIngest(Node):
         return None
 
     def _apply_live(self, name, value):
-        """The filters read their parameters at every fix: the next fix uses the new value."""
+        """The bank reads its parameters at every batch: the next fix uses the new value."""
         self.cfg.filter_params = self._live_filter_params(name, value)
-        for f in self.filters.values():
-            f.params = self.cfg.filter_params
+        self.bank.params = self.cfg.filter_params
+        self.clock.accel_std = self.cfg.filter_params.accel_std
 
     # -- one fix ------------------------------------------------------------------------
     def on_fix(self, agent: str, msg: NavSatFix):
@@ -309,38 +333,86 @@ class GpsIngest(Node):
             if self.datum is None:
                 self._hold(fix)
             else:
-                self.process(*fix)
+                self._inbox.append(fix)
+                if self.cfg.batch_period_s == 0 or len(self._inbox) >= 100_000:
+                    self.drain()
         except Exception as exc:   # a bad message must never stop the node
             self.message_errors += 1
             self.get_logger().warn(f'{agent}: fix dropped ({type(exc).__name__}: {exc})',
                                    throttle_duration_sec=5.0)
 
-    def process(self, agent, stamp, lat, lon, alt, status, covariance, covariance_type):
-        """Filter one fix, publish its odometry and the herd snapshots it completes."""
+    def on_shutdown(self):
+        """Stop signal: filter and publish the fixes still waiting for their batch."""
+        self.drain()
+
+    def _new_clock(self) -> BatchHerdClock:
+        p = self.cfg.filter_params
+        return BatchHerdClock(self.cfg.agents, self.cfg.dt, p.stale_after, p.accel_std,
+                              p.velocity_tau)
+
+    def drain(self):
+        """Filter the fixes received since the last batch (:meth:`process_batch`)."""
+        if not self._inbox:
+            return
+        fixes, self._inbox = self._inbox, []
+        try:
+            self.process_batch(fixes)
+        except Exception as exc:   # a bad batch must never stop the node
+            self.message_errors += len(fixes)
+            self.get_logger().warn(f'{len(fixes)} fixes dropped ({type(exc).__name__}: '
+                                   f'{exc})', throttle_duration_sec=5.0)
+
+    def process_batch(self, fixes: list[tuple]):
+        """Filter fixes (in arrival order) with the collar bank, publish the odometry of the
+        accepted ones and the herd snapshots they complete."""
+        m = len(fixes)
+        agent_of = self.cfg.agents
+        idx = np.fromiter((self._index[f[0]] for f in fixes), np.int64, m)
+        cols = list(zip(*(f[1:6] for f in fixes)))
+        stamp, lat, lon, alt = (np.asarray(c, dtype=float) for c in cols[:4])
+        status = np.asarray(cols[4], dtype=np.int64)
+        cov = np.array([f[6] for f in fixes], dtype=float).reshape(m, 9)
+        cov_type = np.fromiter((f[7] for f in fixes), np.int64, m)
         lat0, lon0, alt0 = self.datum
         with np.errstate(invalid='ignore'):
             e, n, _ = geodetic_to_enu(lat, lon, alt, lat0, lon0, alt0, nan_alt=alt0)
-        collar = self.filters[agent]
-        result = collar.update(stamp, float(e), float(n), status=status,
-                               position_covariance=covariance,
-                               position_covariance_type=covariance_type)
-        if result.accepted:
-            self.odom_pubs[agent].publish(odometry_from_filter(collar, agent,
-                                                               self.cfg.frame_id))
-        else:
-            self.last_rejection[agent] = f'{result.reason}: {result.detail}'
-            self.get_logger().warn(f'{agent}: fix at {stamp:.3f} rejected ({result.reason}: '
-                                   f'{result.detail})', throttle_duration_sec=5.0)
-        if (math.isfinite(self.clock.herd_time)
-                and stamp > self.clock.herd_time + self.cfg.max_clock_jump_s):
-            self.clock_restarts += 1
-            self.get_logger().warn(f'data time jumped {stamp - self.clock.herd_time:.0f} s '
-                                   f'(> max_clock_jump_s): herd clock restarted at {stamp:.3f}')
-            self.clock = HerdClock(self.cfg.agents, self.cfg.dt,
-                                   self.cfg.filter_params.stale_after)
-        for snap in self.clock.observe(agent, stamp, collar):
-            self.poses_pub.publish(pose_array_from_snapshot(snap, self.cfg.frame_id))
-            self.ticks_published += 1
+        batch = self.bank.process(idx, stamp, e, n, status,
+                                  self.bank.measurement_covariances(cov_type, cov))
+        accepted = batch.accepted
+        frame = self.cfg.frame_id
+        publish = [self.odom_pubs[a].publish for a in agent_of]
+        for k in np.flatnonzero(accepted).tolist():
+            i = idx[k]
+            publish[i](odometry_from_state(stamp[k], batch.x[k], batch.P[k], agent_of[i],
+                                           frame))
+        for k in np.flatnonzero(~accepted).tolist():
+            agent, reason = agent_of[idx[k]], OUTCOMES[batch.outcome[k]]
+            detail = REJECTION_TEXT[reason]
+            if reason == 'gate':
+                detail += f' (distance² {batch.mahalanobis2[k]:.1f})'
+            self.last_rejection[agent] = f'{reason}: {detail}'
+            self.get_logger().warn(f'{agent}: fix at {stamp[k]:.3f} rejected ({reason}: '
+                                   f'{detail})', throttle_duration_sec=5.0)
+        # the herd clock; a forward jump of data time beyond max_clock_jump_s restarts it
+        finite = np.where(np.isfinite(stamp), stamp, -np.inf)
+        before = np.maximum.accumulate(np.r_[self.clock.herd_time, finite])[:-1]
+        jumps = np.flatnonzero(np.isfinite(before)
+                               & (finite > before + self.cfg.max_clock_jump_s)).tolist()
+        start = 0
+        for j in jumps + [m]:
+            if j > start:
+                sl = slice(start, j)
+                for snap in self.clock.observe(idx[sl], stamp[sl], accepted[sl],
+                                               batch.x[sl], batch.P[sl]):
+                    self.poses_pub.publish(pose_array_from_snapshot(snap, frame))
+                    self.ticks_published += 1
+            if j < m:
+                self.clock_restarts += 1
+                self.get_logger().warn(f'data time jumped {stamp[j] - before[j]:.0f} s '
+                                       f'(> max_clock_jump_s): herd clock restarted at '
+                                       f'{stamp[j]:.3f}')
+                self.clock = self._new_clock()
+                start = j
 
     # -- datum from the first valid fix -----------------------------------------------
     def _hold(self, fix):
@@ -368,13 +440,9 @@ class GpsIngest(Node):
         self.datum = choose_datum(table)
         self._log_datum('first valid fix')
         self._pending = []
-        for k in np.argsort(table['time'].to_numpy(), kind='stable'):
-            try:
-                self.process(*held[k])
-            except Exception as exc:
-                self.message_errors += 1
-                self.get_logger().warn(f'{held[k][0]}: held fix dropped '
-                                       f'({type(exc).__name__}: {exc})')
+        order = np.argsort(table['time'].to_numpy(), kind='stable')
+        self._inbox.extend(held[k] for k in order)
+        self.drain()
 
     def _log_datum(self, source: str):
         self.get_logger().info('datum (%s): lat %.9f lon %.9f alt %.3f'
@@ -384,26 +452,28 @@ class GpsIngest(Node):
     def publish_diagnostics(self):
         herd_time = self.clock.herd_time
         statuses = []
-        for agent in self.cfg.agents:
-            collar = self.filters[agent]
-            counters = dict(collar.counters)
+        stale_all = (self.bank.is_stale(herd_time) if math.isfinite(herd_time)
+                     else np.zeros(len(self.cfg.agents), bool))
+        for i, agent in enumerate(self.cfg.agents):
+            counters = self.bank.counter_dict(i)
             counters['rejected_future'] = self.rejected_future[agent]
             previous = self._reported[agent]
             rejected_now = any(counters[k] > previous.get(k, 0) for k in counters
                                if k.startswith('rejected_'))
             self._reported[agent] = counters
-            stale = bool(math.isfinite(herd_time) and collar.is_stale(herd_time))
+            stale = bool(stale_all[i])
             if rejected_now:
                 level, message = WARN, f'rejected {self.last_rejection[agent]}'
             elif stale:
-                level, message = WARN, ('stale: no accepted fix yet' if not collar.initialised
+                level, message = WARN, ('stale: no accepted fix yet'
+                                        if not self.bank.initialised[i]
                                         else f'stale: silent for more than '
                                         f'{self.cfg.filter_params.stale_after:g} s, missing '
                                         f'(NaN) in /herd/poses')
             else:
                 level, message = OK, 'ok'
             values = dict(counters)
-            values.update(stale=stale, last_fix=collar.t,
+            values.update(stale=stale, last_fix=float(self.bank.t[i]),
                           last_rejection=self.last_rejection[agent])
             statuses.append(diagnostic_status(f'gps_ingest: {agent}', level, message, values,
                                               hardware_id=agent))
