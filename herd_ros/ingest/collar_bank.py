@@ -151,6 +151,15 @@ class CollarBank:
         self.cand_z = np.zeros((n, MAX_CANDIDATES, L, 2))
         self.cand_r = np.zeros((n, MAX_CANDIDATES, L, 2, 2))
 
+    @staticmethod
+    def warm_up():
+        """Load the compiled loop (numba's cache: ~0.3 s the first time in a process) so
+        that the first fixes of a live node do not wait for it."""
+        bank = CollarBank(1)
+        bank.process(np.zeros(1, np.int64), np.zeros(1), np.zeros(1), np.zeros(1),
+                     np.zeros(1, np.int64),
+                     bank.measurement_covariances(np.zeros(1, np.int64), np.zeros((1, 9))))
+
     @property
     def initialised(self) -> np.ndarray:
         """(n,) the collar has a track."""

@@ -221,6 +221,37 @@ def odometry_from_state(t: float, x, P, agent: str, frame_id: str) -> Odometry:
     return msg
 
 
+class OdometryMessages:
+    """One reusable Odometry per collar, frames and constant entries set once; :meth:`fill`
+    writes a state into it (what :func:`odometry_from_state` builds, in 10 µs instead of
+    60 µs, measured: 1 % of a core at 1 000 fixes/s instead of 6 %)."""
+
+    def __init__(self, agents, frame_id: str):
+        self._msgs = []
+        for agent in agents:
+            msg = Odometry()
+            msg.header.frame_id = frame_id
+            msg.child_frame_id = agent
+            msg.pose.pose.orientation.w = 1.0
+            self._msgs.append(msg)
+        self._base = np.diag(np.full(6, UNOBSERVED_VARIANCE)).reshape(36)
+
+    def fill(self, i: int, t: float, x, P) -> Odometry:
+        msg = self._msgs[i]
+        msg.header.stamp = seconds_to_stamp(t)
+        position = msg.pose.pose.position
+        position.x, position.y = float(x[0]), float(x[1])
+        velocity = msg.twist.twist.linear
+        velocity.x, velocity.y = float(x[2]), float(x[3])
+        c = self._base.copy()
+        c[[0, 1, 6, 7]] = P[:2, :2].ravel()
+        msg.pose.covariance = c
+        c = self._base.copy()
+        c[[0, 1, 6, 7]] = P[2:, 2:].ravel()
+        msg.twist.covariance = c
+        return msg
+
+
 #: what a rejection means, for diagnostics and logs
 REJECTION_TEXT = {
     'no_fix': 'status is STATUS_NO_FIX',
@@ -262,10 +293,14 @@ class GpsIngest(Node):
     def __init__(self):
         super().__init__('gps_ingest')
         self.cfg = cfg = GpsIngestConfig(declare_parameters(self, DEFAULTS))
+        CollarBank.warm_up()           # compiled code loaded before the first fix
+        BatchHerdClock.warm_up()
         self.bank = CollarBank(len(cfg.agents), cfg.filter_params)
         self.clock = self._new_clock()
         self._index = {a: i for i, a in enumerate(cfg.agents)}
         self._inbox: list[tuple] = []               # fixes waiting for the next batch
+        self._diagnostics_job = None
+        self._odom = OdometryMessages(cfg.agents, cfg.frame_id)
         self.datum = cfg.datum
         self._pending: list[tuple] = []            # fixes held until the datum is chosen
         self._pending_valid: dict[str, float] = {}  # agent -> first valid stamp held
@@ -279,6 +314,7 @@ class GpsIngest(Node):
         self._errors_reported = 0
         self.odom_pubs = {a: self.create_publisher(Odometry, f'/herd/{a}/odom', 10)
                           for a in cfg.agents}
+        self._odom_publish = [self.odom_pubs[a].publish for a in cfg.agents]
         self.poses_pub = self.create_publisher(PoseArray, '/herd/poses',
                                                QoSProfile(depth=100))
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -351,8 +387,10 @@ class GpsIngest(Node):
                               p.velocity_tau)
 
     def drain(self):
-        """Filter the fixes received since the last batch (:meth:`process_batch`)."""
+        """Filter the fixes received since the last batch (:meth:`process_batch`); then a
+        step of the diagnostics being built, if any."""
         if not self._inbox:
+            self._advance_diagnostics()
             return
         fixes, self._inbox = self._inbox, []
         try:
@@ -361,6 +399,7 @@ class GpsIngest(Node):
             self.message_errors += len(fixes)
             self.get_logger().warn(f'{len(fixes)} fixes dropped ({type(exc).__name__}: '
                                    f'{exc})', throttle_duration_sec=5.0)
+        self._advance_diagnostics()
 
     def process_batch(self, fixes: list[tuple]):
         """Filter fixes (in arrival order) with the collar bank, publish the odometry of the
@@ -380,11 +419,9 @@ class GpsIngest(Node):
                                   self.bank.measurement_covariances(cov_type, cov))
         accepted = batch.accepted
         frame = self.cfg.frame_id
-        publish = [self.odom_pubs[a].publish for a in agent_of]
         for k in np.flatnonzero(accepted).tolist():
-            i = idx[k]
-            publish[i](odometry_from_state(stamp[k], batch.x[k], batch.P[k], agent_of[i],
-                                           frame))
+            i = int(idx[k])
+            self._odom_publish[i](self._odom.fill(i, stamp[k], batch.x[k], batch.P[k]))
         for k in np.flatnonzero(~accepted).tolist():
             agent, reason = agent_of[idx[k]], OUTCOMES[batch.outcome[k]]
             detail = REJECTION_TEXT[reason]
@@ -449,12 +486,45 @@ class GpsIngest(Node):
                                % ((source,) + tuple(self.datum)))
 
     # -- diagnostics --------------------------------------------------------------------
+    #: collar statuses built and published (one DiagnosticArray) per step of the job
+    DIAGNOSTICS_STEP = 50
+
     def publish_diagnostics(self):
+        """Start the diagnostics of this period. With many collars, building the message
+        (a status of a dozen values per collar: ~45 ms for 1 000 collars, measured) and
+        converting it for DDS (~0.1 s) would hold every fix back for that long, so the batch
+        timer builds and publishes it :data:`DIAGNOSTICS_STEP` collars per DiagnosticArray
+        at a time, between batches; the node's own status comes in the last one (without
+        batches, all at once). Monitors key statuses by name, so several arrays per period
+        are one report."""
+        if self._diagnostics_job is not None:
+            return                       # the previous one is still being built
+        self._diagnostics_job = self._diagnostics()
+        if self.cfg.batch_period_s == 0:
+            self._advance_diagnostics(until_done=True)
+
+    def _advance_diagnostics(self, until_done: bool = False):
+        job = self._diagnostics_job
+        if job is None:
+            return
+        try:
+            while True:
+                next(job)
+                if not until_done:
+                    return
+        except StopIteration:
+            self._diagnostics_job = None
+
+    def _diagnostics(self):
         herd_time = self.clock.herd_time
         statuses = []
         stale_all = (self.bank.is_stale(herd_time) if math.isfinite(herd_time)
                      else np.zeros(len(self.cfg.agents), bool))
         for i, agent in enumerate(self.cfg.agents):
+            if i and i % self.DIAGNOSTICS_STEP == 0:
+                self.diag_pub.publish(diagnostic_array(self, statuses))
+                statuses = []
+                yield
             counters = self.bank.counter_dict(i)
             counters['rejected_future'] = self.rejected_future[agent]
             previous = self._reported[agent]
