@@ -394,3 +394,33 @@ def test_node_on_collars_with_every_real_fault(ros, console_script, tmp_path):
     burst = fixes['burst'].to_numpy()
     assert burst.sum() > 5
     assert not np.isin(offline.meta['fix_outcomes'][burst], ['accepted', 'reinitialised']).any()
+
+
+def test_a_large_herd_is_reported_in_turn(ros, console_script, tmp_path):
+    """diagnostics_max_collars: at most that many collar statuses per period, every collar
+    reported in turn, the node's totals every period."""
+    node, env = ros
+    agents = [f'cow_{k}' for k in range(5)]
+    proc = start_node(console_script, env, tmp_path, agents, diagnostics_max_collars=2,
+                      datum=[46.8, 7.15, 550.0])
+    arrays = []
+    node.create_subscription(DiagnosticArray, '/diagnostics', arrays.append, 50)
+    executor = rclpy.executors.SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and len(arrays) < 6:
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        assert stop(proc) == 0, proc.log_path.read_text()
+    assert len(arrays) >= 6, 'too few diagnostics'
+    seen = set()
+    for msg in arrays:
+        collars = [s for s in msg.status if s.hardware_id]
+        assert len(collars) <= 2
+        seen |= {s.hardware_id for s in collars}
+        summary = [s for s in msg.status if s.name == 'gps_ingest']
+        assert len(summary) == 1 and 'in turn' in summary[0].message
+        keys = {kv.key for kv in summary[0].values}
+        assert {'fixes', 'accepted', 'stale_collars'} <= keys
+    assert seen == set(agents)

@@ -71,7 +71,8 @@ from herd_ros.model.model_file import check_agent_id
 from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
                                        declare_parameters, describe_remaining_parameters,
                                        diagnostic_array, diagnostic_status, exit_process,
-                                       number_problem, run_node, seconds_to_stamp,
+                                       number_problem, refresh_status, run_node,
+                                       seconds_to_stamp,
                                        wall_timer,
                                        stamp_to_seconds)
 
@@ -121,6 +122,8 @@ DEFAULTS = {
                                       'restarts the herd clock', range=(1e-3, 1e12)),
     'batch_period_s': Param(0.005, 'fixes are filtered in batches every this many s (wall '
                                    'time); 0 = each fix as it arrives', range=(0.0, 1.0)),
+    'diagnostics_max_collars': Param(1000, 'collar statuses per diagnostics period; more '
+                                           'collars are reported in turn', range=(1, 10**7)),
     'executor': Param('events', 'rclpy executor', choices=EXECUTORS),
     'fix_queue_depth': Param(50, 'history depth of each /herd/<agent>/fix subscription',
                              range=(1, 100000)),
@@ -183,6 +186,7 @@ class GpsIngestConfig:
                                  f'{p["executor"]!r}')
         self.executor = p['executor']
         self.batch_period_s = _number(p, 'batch_period_s')
+        self.diagnostics_max_collars = int(p['diagnostics_max_collars'])
         depth = p['fix_queue_depth']
         if isinstance(depth, bool) or not isinstance(depth, int) or depth < 1:
             raise ParameterError(f'fix_queue_depth must be an integer ≥ 1, got {depth!r}')
@@ -300,6 +304,8 @@ class GpsIngest(Node):
         self._index = {a: i for i, a in enumerate(cfg.agents)}
         self._inbox: list[tuple] = []               # fixes waiting for the next batch
         self._diagnostics_job = None
+        self._diagnostics_next = 0                 # first collar of the next report
+        self._statuses = [None] * len(cfg.agents)  # each collar's status, reused
         self._odom = OdometryMessages(cfg.agents, cfg.frame_id)
         self.datum = cfg.datum
         self._pending: list[tuple] = []            # fixes held until the datum is chosen
@@ -520,8 +526,14 @@ class GpsIngest(Node):
         statuses = []
         stale_all = (self.bank.is_stale(herd_time) if math.isfinite(herd_time)
                      else np.zeros(len(self.cfg.agents), bool))
-        for i, agent in enumerate(self.cfg.agents):
-            if i and i % self.DIAGNOSTICS_STEP == 0:
+        n = len(self.cfg.agents)
+        share = min(n, self.cfg.diagnostics_max_collars)
+        first = self._diagnostics_next % n
+        self._diagnostics_next = (first + share) % n
+        for j in range(share):
+            i = (first + j) % n
+            agent = self.cfg.agents[i]
+            if j and j % self.DIAGNOSTICS_STEP == 0:
                 self.diag_pub.publish(diagnostic_array(self, statuses))
                 statuses = []
                 yield
@@ -545,11 +557,15 @@ class GpsIngest(Node):
             values = dict(counters)
             values.update(stale=stale, last_fix=float(self.bank.t[i]),
                           last_rejection=self.last_rejection[agent])
-            statuses.append(diagnostic_status(f'gps_ingest: {agent}', level, message, values,
-                                              hardware_id=agent))
+            self._statuses[i] = refresh_status(self._statuses[i], f'gps_ingest: {agent}',
+                                               level, message, values, hardware_id=agent)
+            statuses.append(self._statuses[i])
         errors_now = self.message_errors > self._errors_reported
         self._errors_reported = self.message_errors
+        totals = self.bank.counters.sum(axis=0)
         node_values = {'herd_time': herd_time, 'ticks_published': self.ticks_published,
+                       'fixes': int(totals[:-1].sum()) + sum(self.rejected_future.values()),
+                       'accepted': int(totals[0]), 'stale_collars': int(stale_all.sum()),
                        'message_errors': self.message_errors,
                        'clock_restarts': self.clock_restarts,
                        'fixes_waiting_for_datum': len(self._pending),
@@ -557,7 +573,8 @@ class GpsIngest(Node):
                                  else ', '.join(f'{v:.9f}' for v in self.datum))}
         statuses.append(diagnostic_status(
             'gps_ingest', WARN if errors_now else OK,
-            'bad messages dropped' if errors_now else f'{len(self.cfg.agents)} collars',
+            'bad messages dropped' if errors_now else
+            f'{n} collars' + (f', statuses of {share} per period in turn' if share < n else ''),
             node_values))
         self.diag_pub.publish(diagnostic_array(self, statuses))
 

@@ -71,7 +71,7 @@ def run_publisher(n, seconds, rate):
     agents = agents_of(n)
     pubs = [node.create_publisher(NavSatFix, f'/herd/{a}/fix', qos_profile_sensor_data)
             for a in agents]
-    deadline = time.monotonic() + 300
+    deadline = time.monotonic() + 1800     # 10 000 collars: the node takes ~3 min to build
     while time.monotonic() < deadline:
         if all(p.get_subscription_count() > 0 for p in pubs):
             break
@@ -188,7 +188,7 @@ def run_once(n, seconds, rate, executor_name, env):
         def publisher_said(key):
             return any(key in x for x in list(lines)) or pub_proc.poll() is not None
 
-        spin_for(600, lambda: publisher_said('ready') or publisher_said('error'))
+        spin_for(2000, lambda: publisher_said('ready') or publisher_said('error'))
         setup_s = time.monotonic() - t_setup
         if not any('ready' in x for x in lines):
             raise RuntimeError(f'publisher failed: {lines}')
