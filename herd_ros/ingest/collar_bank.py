@@ -298,6 +298,24 @@ def _motion(tau, accel_std, velocity_tau):
 
 
 @_jit
+def _sandwich(A, P, out):
+    """out = A P Aᵀ (4 × 4), summed in the order of the matrix products."""
+    AP = np.zeros((4, 4))
+    for i in range(4):
+        for j in range(4):
+            s = 0.0
+            for k in range(4):
+                s += A[i, k] * P[k, j]
+            AP[i, j] = s
+    for i in range(4):
+        for j in range(4):
+            s = 0.0
+            for k in range(4):
+                s += AP[i, k] * A[j, k]
+            out[i, j] = s
+
+
+@_jit
 def _predict(x, P, tau, accel_std, velocity_tau, xo, Po):
     """xo = F x, Po = F P Fᵀ + Q (filterpy's predict)."""
     f_pv, f_vv, pp, pv, vv = _motion(tau, accel_std, velocity_tau)
@@ -310,19 +328,7 @@ def _predict(x, P, tau, accel_std, velocity_tau, xo, Po):
         for j in range(4):
             s += F[i, j] * x[j]
         xo[i] = s
-    FP = np.zeros((4, 4))
-    for i in range(4):
-        for j in range(4):
-            s = 0.0
-            for k in range(4):
-                s += F[i, k] * P[k, j]
-            FP[i, j] = s
-    for i in range(4):
-        for j in range(4):
-            s = 0.0
-            for k in range(4):
-                s += FP[i, k] * F[j, k]
-            Po[i, j] = s
+    _sandwich(F, P, Po)
     for i in range(2):
         Po[i, i] += pp
         Po[i, i + 2] += pv
@@ -359,23 +365,14 @@ def _update(x, P, z0, z1, R):
         A[i, i] = 1.0
         A[i, 0] -= K[i, 0]
         A[i, 1] -= K[i, 1]
-    AP = np.zeros((4, 4))
-    for i in range(4):
-        for j in range(4):
-            s = 0.0
-            for k in range(4):
-                s += A[i, k] * P[k, j]
-            AP[i, j] = s
     KR = np.empty((4, 2))
     for i in range(4):
         KR[i, 0] = K[i, 0] * R[0, 0] + K[i, 1] * R[1, 0]
         KR[i, 1] = K[i, 0] * R[0, 1] + K[i, 1] * R[1, 1]
+    _sandwich(A, P, P)
     for i in range(4):
         for j in range(4):
-            s = 0.0
-            for k in range(4):
-                s += AP[i, k] * A[j, k]
-            P[i, j] = s + (KR[i, 0] * K[j, 0] + KR[i, 1] * K[j, 1])
+            P[i, j] += KR[i, 0] * K[j, 0] + KR[i, 1] * K[j, 1]
 
 
 @_jit

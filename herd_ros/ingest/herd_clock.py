@@ -415,17 +415,7 @@ class BatchHerdClock:
                   > self.stale_after)
         return bool(np.all((self.reported >= tick) | (silent & (tick < self.herd_time))))
 
-    def _emit(self, final: bool) -> list[HerdSnapshot]:
-        out = []
-        if self._next_k is None:
-            return out
-        while True:
-            tick = self._next_k * self.dt
-            if tick > self.herd_time or not (final or self._ready(tick)):
-                break
-            out.append(self.snapshot(tick))
-            self._next_k += 1
-        return out
+    _emit = HerdClock._emit     # the same tick loop over this class' _ready and _snapshot
 
     def snapshot(self, tick: float) -> HerdSnapshot:
         """Every collar at ``tick`` from the states kept (see the class docstring)."""
@@ -438,6 +428,8 @@ class BatchHerdClock:
                   self.velocity_tau, self.stale_after, x, P, stale, init)
         return HerdSnapshot(float(tick), list(self.agents), x[:, :2].copy(), x[:, 2:].copy(),
                             P[:, :2, :2].copy(), stale, init)
+
+    _snapshot = snapshot
 
 
 from herd_ros.ingest.collar_bank import _jit, _predict  # noqa: E402
