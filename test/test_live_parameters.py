@@ -54,7 +54,15 @@ def graph(tmp_path, ros_env, console_script):
     for name in procs:
         client = AsyncParameterClient(listener.node, name)
         assert client.wait_for_services(timeout_sec=60.0), name
-        _wait(listener, client.list_parameters(), timeout=120.0)
+        # a request sent while the node is still building (its services exist before it
+        # spins; gps_ingest and the estimator load compiled kernels, seconds with a cold
+        # numba cache on a loaded machine) can go unanswered: ask again
+        for _ in range(4):
+            future = client.list_parameters()
+            if listener.spin(45.0, until=future.done):
+                break
+        else:
+            raise AssertionError(f'{name}: parameter service did not answer in 180 s')
     yield listener, procs, tmp_path
     listener.close()
     for p in procs.values():
