@@ -62,6 +62,10 @@ def add_arguments(p):
                    help='interaction law: pairwise (the paper) or shared; auto = pairwise '
                         'up to %d agents, shared above (with --online: pairwise)'
                         % PAIRWISE_MAX_AGENTS)
+    p.add_argument('--interact-with-own-profile', metavar='AGENT[,AGENT..]', default='',
+                   help='distinguished agents (a dog, a robot, a leader) whose pull on every '
+                        'other agent gets its own distance profile instead of being pooled '
+                        'into the shared law (implies the shared law)')
 
 
 def _fmt(x, nd=3):
@@ -89,6 +93,13 @@ def _candidates(args):
 
 
 def run(args) -> int:
+    own_agents = [a.strip() for a in args.interact_with_own_profile.split(',') if a.strip()]
+    if own_agents and args.online:
+        raise HerdInputError('--interact-with-own-profile is for the batch fit; the online '
+                             'estimator has no own profiles')
+    if own_agents and args.law == 'pairwise':
+        raise HerdInputError('--interact-with-own-profile needs the shared law (the pairwise '
+                             'law already gives every pair its own parameters)')
     if args.online:
         from herd_ros.cli.fit_online import run_online
         if args.law == 'auto':
@@ -107,13 +118,14 @@ def run(args) -> int:
                              train[0].dt, folds=args.folds, ridges=ridges, grids=grids,
                              terms=terms, bounds=bounds, min_visits=args.min_visits,
                              law=None if args.law == 'auto' else args.law,
-                             progress=lambda a: bar.update(1))
+                             own_agents=own_agents, progress=lambda a: bar.update(1))
     bar.close()
     bar = progress(total=len(agents), desc='fitting agents', unit='agent')
     fit = fit_structure(train, selection.chosen, law=selection.law, profile=selection.profile,
                         bounds=selection.bounds, min_visits=args.min_visits, se=args.se,
                         datum=datum, progress=lambda a: bar.update(1),
-                        robust=args.loss == 'robust')
+                        robust=args.loss == 'robust', own_agents=selection.own_agents,
+                        own_profile=selection.own_profile)
     bar.close()
     chosen = selection.as_dict()
     chosen['loss'] = args.loss

@@ -193,7 +193,17 @@ def robot_shared_model(model, assignment: list[str], robots: list[str] | None = 
     pair parameters, so any assignment works, two robots on one animal included)."""
     from herd_ros.model.shared_law import SharedLawModel
     robots, idx = _robot_assignment(model, assignment, robots)
+    # a robot on a distinguished animal (a dog) is distinguished among the robots: every
+    # robot sees it through its own animal's profile of that animal
+    own_robots = [r for r, i in zip(robots, idx) if model.agents[i] in model.own_agents]
+    own_coef = None
+    if own_robots:
+        slot = [model.own_agents.index(model.agents[idx[robots.index(r)]]) for r in own_robots]
+        own_coef = model.own_coef[np.ix_(idx, slot)]
     return SharedLawModel(agents=robots, dt=model.dt, profile=model.profile,
+                          own_agents=own_robots,
+                          own_profile=model.own_profile if own_robots else None,
+                          own_coef=own_coef,
                           damping=model.damping[idx], profile_coef=model.profile_coef[idx],
                           bases=[model.bases[i] for i in idx],
                           field_u=[model.field_u[i] for i in idx],

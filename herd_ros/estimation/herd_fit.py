@@ -134,16 +134,18 @@ def _null_basis(bounds) -> RbfBasis:
 def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
                   profile=None, bounds=None, min_visits: int = DEFAULT_MIN_VISITS,
                   se: str = 'sandwich', frame_id: str = 'map', datum=None, progress=None,
-                  robust: bool = False):
+                  robust: bool = False, own_agents=(), own_profile=None):
     """Batch least squares (``robust``: the outlier-robust IRLS of
     :mod:`herd_ros.estimation.robust`) of a selected structure (:mod:`model_selection`): the damping
     always, the interactions (pairwise law, or the shared profile when ``law='shared'``)
     and the field on ``structure.grid`` over ``bounds`` only if selected, ridge
     ``structure.ridge``. Terms left out are zero in the model (and in its ``theta_se``).
+    ``own_agents`` with ``own_profile``: distinguished agents of the shared law (their own
+    profile; see :mod:`herd_ros.model.shared_law`).
 
     Returns a :class:`HerdFit` whose model is a :class:`HerdModel` (pairwise, or no
     interactions) or a :class:`~herd_ros.model.shared_law.SharedLawModel`."""
-    from herd_ros.estimation.model_selection import structured_regression
+    from herd_ros.estimation.model_selection import check_own_agents, structured_regression
     from herd_ros.estimation.robust import fit_agent_robust
     from herd_ros.simulation.prediction import calibrate_prediction_scale
     from herd_ros.model.shared_law import SharedLawModel
@@ -157,6 +159,9 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
     field_grid = (FieldGrid(structure.grid[0], structure.grid[1], tuple(bounds))
                   if structure.grid is not None else None)
     shared = structure.interactions and law == 'shared'
+    own = check_own_agents(list(own_agents), agents) if shared else []
+    if own and own_profile is None:
+        raise HerdInputError('own-profile agents need their profile basis (own_profile)')
     laws, fits, bases, out = {}, {}, [], []
     for i, a in enumerate(agents):
         if field_grid is not None:
@@ -165,13 +170,20 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
                                        min_visits)
         else:
             basis = RbfBasis(np.zeros((0, 2)), np.zeros(0))
-        reg = structured_regression(positions, i, agents, dt, structure, law, profile, basis)
+        reg = structured_regression(positions, i, agents, dt, structure, law, profile, basis,
+                                    own, own_profile)
         if robust:
             fit, _ = fit_agent_robust(reg, ridge=structure.ridge, se=se)
         else:
             fit = fit_agent(reg, ridge=structure.ridge, se=se)
         pa, K = reg.A_x.shape[1], basis.size
         th, sd = fit.theta, fit.theta_se
+        if i in own:
+            # the agent's block with itself was not fitted: zeros in θ and its SE
+            at = 1 + profile.size + own.index(i) * own_profile.size
+            th = np.insert(th, at, np.zeros(own_profile.size))
+            sd = np.insert(sd, at, np.zeros(own_profile.size))
+            pa += own_profile.size
         if K == 0:
             # no field: one centre with zero weight (a ROS parameter array cannot be empty)
             basis, K = _null_basis(bounds), 1
@@ -193,9 +205,12 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
     meta = {'min_visits': min_visits, 'ridge': structure.ridge, 'se': se,
             'terms': structure.terms, 'loss': 'robust' if robust else 'l2'}
     if shared:
+        B = profile.size
         model = SharedLawModel(
             agents=agents, dt=dt, profile=profile,
-            damping=[o[0][0] for o in out], profile_coef=[o[0][1:o[2]] for o in out],
+            damping=[o[0][0] for o in out], profile_coef=[o[0][1:1 + B] for o in out],
+            own_agents=[agents[k] for k in own], own_profile=own_profile if own else None,
+            own_coef=[o[0][1 + B:o[2]] for o in out] if own else None,
             bases=bases, field_u=[o[0][o[2]:o[2] + o[3]] for o in out],
             field_v=[o[0][o[2] + o[3]:] for o in out],
             noise_cov=[fits[a].noise_cov for a in agents],

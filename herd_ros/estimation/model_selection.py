@@ -98,6 +98,8 @@ class Selection:
     chosen: Structure | None = None
     folds: int = FOLDS
     samples: int = 0
+    own_agents: list = field(default_factory=list)      # distinguished agents (shared law)
+    own_profile: DistanceProfile | None = None          # their profile ψ'
 
     def as_dict(self) -> dict:
         """Plain types, for the model file and summary.json."""
@@ -107,6 +109,7 @@ class Selection:
                       f'one-step error, one-standard-error rule',
             'terms': c.terms, 'grid': list(c.grid) if c.grid else [],
             'ridge': float(c.ridge), 'interaction_law': self.law if c.interactions else '',
+            'own_profile_agents': list(self.own_agents) if c.interactions else [],
             'field_bounds': [float(b) for b in self.bounds],
             'cv_rms': {'selected': float(self._row(c)['rms']),
                        'constant_velocity': float(self.baselines['constant_velocity']),
@@ -120,28 +123,60 @@ class Selection:
 
 
 # -- regression samples ----------------------------------------------------------------
-def shared_columns(pt: np.ndarray, i: int, profile: DistanceProfile) -> np.ndarray:
-    """Σ_{j: d_ij < r} ψ_b(d_ij) e_ij of agent i at every step: pt (M, N, 2) -> (M, B, 2).
+def shared_columns(pt: np.ndarray, i: int, profile: DistanceProfile, own=(),
+                   own_profile: DistanceProfile | None = None) -> np.ndarray:
+    """Σ_{j: d_ij < r} ψ_b(d_ij) e_ij of agent i at every step: pt (M, N, 2) -> (M, B, 2),
+    then, per distinguished agent k of ``own``, ψ'_b(d_ik) e_ik: (M, B + S·B', 2).
 
     The shared law's interaction regressors (:func:`herd_ros.model.shared_law.shared_rows`),
-    vectorised over time; a missing neighbour (NaN) drops out."""
-    others = [j for j in range(pt.shape[1]) if j != i]
-    off = pt[:, others, :] - pt[:, i:i + 1, :]
-    d = np.sqrt((off ** 2).sum(-1))
-    ok = np.isfinite(d) & (d > 0)
-    with np.errstate(invalid='ignore', divide='ignore'):
-        e = np.where(ok[..., None], off / np.where(ok, d, 1.0)[..., None], 0.0)
-    psi = profile.features(np.where(ok, d, np.inf))          # (M, N−1, B), 0 beyond r
-    return np.einsum('mjb,mjk->mbk', psi, e)
+    vectorised over time; a missing neighbour (NaN) drops out; the distinguished agents are
+    left out of the pooled sum, and agent i's block with itself is zero."""
+    def columns(others, basis):
+        off = pt[:, others, :] - pt[:, i:i + 1, :]
+        d = np.sqrt((off ** 2).sum(-1))
+        ok = np.isfinite(d) & (d > 0)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            e = np.where(ok[..., None], off / np.where(ok, d, 1.0)[..., None], 0.0)
+        psi = basis.features(np.where(ok, d, np.inf))      # (M, J, B), 0 beyond r
+        return psi, e
+
+    own = [int(k) for k in own]
+    pooled = [j for j in range(pt.shape[1]) if j != i and j not in own]
+    psi, e = columns(pooled, profile)
+    out = [np.einsum('mjb,mjk->mbk', psi, e)]
+    if own:
+        psi, e = columns(own, own_profile)                 # (M, S, B'), (M, S, 2)
+        if i in own:
+            psi[:, own.index(i)] = 0.0
+        out.append((psi[..., None] * e[:, :, None, :]).reshape(pt.shape[0], -1, 2))
+    return np.concatenate(out, axis=1)
+
+
+def own_profile_radius(runs_positions, own, floor: float) -> float:
+    """r' of the distinguished agents' profile: 1.5 × the 95th percentile of their distance
+    to the others (≤ 2000 steps), at least ``floor`` (the shared law's radius). An agent
+    that drives the herd acts from wherever it usually is, and the profile's cosine taper
+    must not silence it there (at the 95th percentile the taper is still 0.25)."""
+    vals = []
+    for p in runs_positions:
+        q = p[np.unique(np.linspace(0, len(p) - 1, min(len(p), 2000)).astype(int))]
+        for k in own:
+            d = np.sqrt(((q - q[:, k:k + 1]) ** 2).sum(-1))
+            d = np.delete(d, k, axis=1)
+            vals.append(d[np.isfinite(d)])
+    vals = np.concatenate(vals) if vals else np.zeros(0)
+    return float(max(floor, 1.5 * np.percentile(vals, 95) if len(vals) else floor))
 
 
 def agent_samples(positions: np.ndarray, i: int, dt: float, law: str,
-                  profile: DistanceProfile | None):
+                  profile: DistanceProfile | None, own=(),
+                  own_profile: DistanceProfile | None = None):
     """The damping/interaction columns of agent i over one run (see :mod:`regressors`).
 
     Returns (A_x, A_y, y_x, y_y, points) with A = [u, interaction columns…] (pairwise:
-    e, −e/d per neighbour; shared: the B profile columns), points = p_i^τ (M, 2) for the
-    field; samples need agent i at τ, τ+1, τ+2."""
+    e, −e/d per neighbour; shared: the B profile columns, then S·B' of the distinguished
+    agents ``own``), points = p_i^τ (M, 2) for the field; samples need agent i at τ, τ+1,
+    τ+2."""
     p = np.asarray(positions, dtype=float)
     if p.shape[0] < 3:
         return None
@@ -156,7 +191,7 @@ def agent_samples(positions: np.ndarray, i: int, dt: float, law: str,
         cx = np.column_stack([e[..., 0], -e_over_d[..., 0]])
         cy = np.column_stack([e[..., 1], -e_over_d[..., 1]])
     else:
-        inter = shared_columns(pt[ok], i, profile)
+        inter = shared_columns(pt[ok], i, profile, own, own_profile)
         cx, cy = inter[..., 0], inter[..., 1]
     A_x = np.column_stack([u[:-1][ok, i, 0], cx])
     A_y = np.column_stack([u[:-1][ok, i, 1], cy])
@@ -225,7 +260,7 @@ def field_grids(bounds, samples_per_agent: int, cells=FIELD_CELLS) -> list[tuple
 def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float, *,
                  folds: int = FOLDS, ridges=RIDGES, grids=None, terms=None,
                  bounds=None, min_visits: int = DEFAULT_MIN_VISITS, law: str | None = None,
-                 progress=None) -> Selection:
+                 own_agents=(), progress=None) -> Selection:
     """Score every candidate by blocked CV and choose one (see the module docstring).
 
     Args:
@@ -234,7 +269,10 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
         terms: restrict to these of :data:`TERMS` (default all).
         ridges: ridge values to try.
         bounds: field bounds (default: the bounding box of the finite positions).
-        law: 'pairwise' or 'shared' for the interactions (default by herd size).
+        law: 'pairwise' or 'shared' for the interactions (default by herd size; 'shared'
+            when there are ``own_agents``).
+        own_agents: distinguished agents with their own profile (shared law; module
+            docstring of :mod:`herd_ros.model.shared_law`).
     """
     n = len(agents)
     if n < 2:
@@ -245,11 +283,19 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
         raise HerdInputError('no finite positions to select a model on')
     if bounds is None:
         bounds = FieldGrid.over(pts, 1, 1).bounds
-    law = law or ('pairwise' if n <= PAIRWISE_MAX_AGENTS else 'shared')
-    profile = None
+    own_agents = list(own_agents)
+    own = check_own_agents(own_agents, agents)
+    if own and law == 'pairwise':
+        raise HerdInputError('own profiles belong to the shared law (the pairwise law already '
+                             'gives every pair its own parameters): drop --law pairwise')
+    law = law or ('pairwise' if n <= PAIRWISE_MAX_AGENTS and not own else 'shared')
+    profile = own_profile = None
     if law == 'shared':
         radius = float(np.clip(4.0 * typical_spacing(runs_positions), 10.0, 200.0))
         profile = DistanceProfile.even(radius, DEFAULT_PROFILE_SIZE)
+        if own:
+            own_profile = DistanceProfile.even(
+                own_profile_radius(runs_positions, own, radius), DEFAULT_PROFILE_SIZE)
     steps = sum(max(p.shape[0] - 2, 0) for p in runs_positions)
     if grids is None:
         grids = field_grids(bounds, steps)
@@ -277,7 +323,7 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
                 continue
             edges = np.linspace(0, T - 2, min(folds, T - 2) + 1).astype(int)
             for b0, b1 in zip(edges[:-1], edges[1:]):
-                smp = agent_samples(p[b0:b1 + 2], i, dt, law, profile)
+                smp = agent_samples(p[b0:b1 + 2], i, dt, law, profile, own, own_profile)
                 for g in designs:
                     if smp is None:
                         blocks[g].append(None)
@@ -357,17 +403,30 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
     sel = Selection(law=law, profile=profile, bounds=tuple(float(b) for b in bounds),
                     table=table, folds=folds, samples=int(total),
                     baselines={m: dt * float(np.sqrt(v[used].sum() / total))
-                               for m, v in base.items()})
+                               for m, v in base.items()},
+                    own_agents=own_agents, own_profile=own_profile)
     sel.chosen = chosen['structure']
     return sel
 
 
+def check_own_agents(own_agents, agents) -> list[int]:
+    """Indices of the distinguished agents; one clear error for names not in the herd."""
+    unknown = [a for a in own_agents if a not in agents]
+    if unknown:
+        raise HerdInputError(f'own-profile agent(s) {", ".join(unknown)} not in the data '
+                             f'(agents: {", ".join(agents)})')
+    if len(set(own_agents)) != len(own_agents):
+        raise HerdInputError('an own-profile agent is listed twice')
+    return [agents.index(a) for a in own_agents]
+
+
 def structured_regression(runs_positions, i: int, agents: list[str], dt: float,
-                          structure: Structure, law: str, profile, basis: RbfBasis | None
-                          ) -> AgentRegression:
+                          structure: Structure, law: str, profile, basis: RbfBasis | None,
+                          own=(), own_profile=None) -> AgentRegression:
     """The regression of agent i for ``structure`` over whole runs (for the final fit by
-    :func:`~herd_ros.estimation.batch_ls.fit_agent`)."""
-    parts = [agent_samples(p, i, dt, law, profile) for p in runs_positions]
+    :func:`~herd_ros.estimation.batch_ls.fit_agent`). A distinguished agent's block with
+    itself (zero columns) is left out: ``fit_structure`` puts zeros back."""
+    parts = [agent_samples(p, i, dt, law, profile, own, own_profile) for p in runs_positions]
     parts = [s for s in parts if s is not None]
     if not parts:
         raise HerdInputError(f'agent {agents[i]}: no three consecutive steps to fit on')
@@ -375,6 +434,11 @@ def structured_regression(runs_positions, i: int, agents: list[str], dt: float,
     A_y = np.vstack([s[1] for s in parts])
     if not structure.interactions:
         A_x, A_y = A_x[:, :1], A_y[:, :1]
+    elif i in own:
+        B, Bo = profile.size, own_profile.size
+        s0 = 1 + B + list(own).index(i) * Bo
+        keep = np.r_[0:s0, s0 + Bo:A_x.shape[1]]
+        A_x, A_y = A_x[:, keep], A_y[:, keep]
     pts = np.vstack([s[4] for s in parts])
     F = basis.features(pts) if (structure.grid is not None and basis is not None) \
         else np.zeros((len(pts), 0))

@@ -19,6 +19,19 @@ independent regression (so the batched RLS of :mod:`herd_ros.estimation.rls` app
 unchanged and a collar that drops out affects only itself), animals of one herd do differ in
 how close they keep to others, and a herd-wide profile is recovered as the mean of the c_i.
 
+**Distinguished agents** (a dog driving sheep, a robot, a leader) can have their **own
+profile**: for the agents k of ``own_agents`` the sum above runs over the other neighbours
+only, and every agent i gains one more term per distinguished agent,
+
+    + H_ik(d_ik) e_ik,   H_ik(d) = Σ_b h_ikb ψ'_b(d)   (k ≠ i, d_ik < r')
+
+on a basis ψ' of the same form with its own radius r' (a dog moves sheep from farther than
+sheep keep to each other). θ_i = [a_i, c_i.., h_i,k1.., h_i,k2.., θu_i.., θv_i..]; the
+block of a distinguished agent with itself is zero (it is not fitted). This is how the
+interactions with an agent of another kind stay identifiable in a large herd: pooled into
+the shared law a dog is one neighbour among fifty and its pull is averaged away; a
+pairwise law gives every pair its own parameters, which hours of data do not identify.
+
 Neighbours come from :class:`scipy.spatial.cKDTree` (``query_pairs``), so one snapshot of
 N animals costs O(N log N + pairs) rather than O(N²).
 
@@ -43,6 +56,18 @@ Model file (``kind: schwager2007_shared``; the ``model:`` mapping of DESIGN.md):
         field_v: [..]
         noise_cov: [qxx, qxy, qyx, qyy]
         theta_se: [..]                # optional, order [damping, profile.., field_u.., field_v..]
+                                      # (with own profiles: [damping, profile.., own_profile..,
+                                      # field_u.., field_v..])
+
+With distinguished agents the model also has (all three or none)::
+
+      own_profile_agents: [dog]       # the agents k with their own profile
+      own_profile_radius: 80.0        # r' (m)
+      own_profile_centers: [..]       # r'_b (m), B' entries; width ⅔ of their spacing
+      own_profile_width: 8.9          # s' (m)
+      cow_1:
+        own_profile: [..]             # h_ik, B' per distinguished agent in their order
+                                      # (zeros for an agent's block with itself)
 """
 from __future__ import annotations
 
@@ -118,10 +143,12 @@ def neighbor_pairs(positions: np.ndarray, radius: float):
     return i, j, off, np.sqrt((off ** 2).sum(-1))
 
 
-def interaction_features(positions: np.ndarray, profile: DistanceProfile):
+def interaction_features(positions: np.ndarray, profile: DistanceProfile, own=()):
     """Σ_{j: d_ij<r} ψ_b(d_ij) e_ij for every agent: (N, 2) -> (N, B, 2), and a valid mask.
 
-    An agent that coincides with a neighbour (d = 0: e_ij undefined) is marked invalid.
+    ``own``: indices of the distinguished agents, left out of everyone else's sum (they act
+    through :func:`own_features`). An agent that coincides with a neighbour (d = 0: e_ij
+    undefined) is marked invalid.
     """
     p = np.asarray(positions, dtype=float)
     n, B = p.shape[0], profile.size
@@ -134,32 +161,64 @@ def interaction_features(positions: np.ndarray, profile: DistanceProfile):
         i, j, off, d = i[~zero], j[~zero], off[~zero], d[~zero]
     e = off / d[:, None] if len(d) else off
     psi = profile.features(d)                           # (M, B)
+    to_i = to_j = 1.0
+    if len(own):
+        pooled = np.ones(n)
+        pooled[np.asarray(own, dtype=int)] = 0.0
+        to_i, to_j = pooled[j], pooled[i]               # j acts on i only if j is not own
     out = np.zeros((n, B, 2))
     for b in range(B):                                  # loop over basis columns, not agents
         for k in range(2):
             w = psi[:, b] * e[:, k]
-            out[:, b, k] = np.bincount(i, w, minlength=n) - np.bincount(j, w, minlength=n)
+            out[:, b, k] = (np.bincount(i, w * to_i, minlength=n)
+                            - np.bincount(j, w * to_j, minlength=n))
     return out, valid
 
 
+def own_features(positions: np.ndarray, own, profile: DistanceProfile):
+    """ψ'_b(d_ik) e_ik of every agent i towards each distinguished agent k = ``own[s]``:
+    (N, 2) -> (N, S, B', 2) (zero for k = i, for a missing k and beyond the radius), and a
+    valid mask (False where i coincides with a distinguished agent)."""
+    p = np.asarray(positions, dtype=float)
+    own = np.asarray(own, dtype=int)
+    off = p[own][None, :, :] - p[:, None, :]            # (N, S, 2): p_k − p_i
+    d = np.sqrt((off ** 2).sum(-1))
+    ok = np.isfinite(d) & (d > 0) & (d < profile.radius)
+    coincide = np.isfinite(d) & (d <= 0)
+    coincide[own, np.arange(len(own))] = False          # an agent with itself
+    with np.errstate(invalid='ignore', divide='ignore'):
+        e = np.where(ok[..., None], off / np.where(ok, d, 1.0)[..., None], 0.0)
+    psi = profile.features(np.where(ok, d, np.inf))     # (N, S, B')
+    return psi[..., None] * e[:, :, None, :], ~coincide.any(axis=1)
+
+
 def shared_rows(p_prev: np.ndarray, p_cur: np.ndarray, dt: float, profile: DistanceProfile,
-                basis: RbfBasis):
+                basis: RbfBasis, own=(), own_profile: DistanceProfile | None = None):
     """Regression rows of u^{τ+1} for all agents from p^τ (``p_prev``) and p^{τ+1} (``p_cur``).
 
-    Returns H (N, 2, p) with rows [u, Σψ e, φ, 0] (x) and [u, Σψ e, 0, φ] (y), p = 1 + B + 2K,
-    and valid (N,) (finite positions, no coincident neighbour).
+    Returns H (N, 2, p) with rows [u, Σψ e, ψ'e.., φ, 0] (x) and [u, Σψ e, ψ'e.., 0, φ] (y),
+    p = 1 + B + S·B' + 2K (S = ``len(own)`` distinguished agents), and valid (N,) (finite
+    positions, no coincident neighbour).
     """
     p0 = np.asarray(p_prev, dtype=float)
     u = (np.asarray(p_cur, dtype=float) - p0) / dt
     n, B, K = p0.shape[0], profile.size, basis.size
-    inter, valid = interaction_features(p0, profile)
+    inter, valid = interaction_features(p0, profile, own)
+    O = 0
+    if len(own):
+        h, ok = own_features(p0, own, own_profile)      # (N, S, B', 2)
+        valid &= ok
+        O = h.shape[1] * h.shape[2]
     phi = basis.features(np.nan_to_num(p0))
-    H = np.zeros((n, 2, 1 + B + 2 * K))
+    H = np.zeros((n, 2, 1 + B + O + 2 * K))
     H[:, :, 0] = u
     H[:, 0, 1:1 + B] = inter[..., 0]
     H[:, 1, 1:1 + B] = inter[..., 1]
-    H[:, 0, 1 + B:1 + B + K] = phi
-    H[:, 1, 1 + B + K:] = phi
+    if O:
+        H[:, 0, 1 + B:1 + B + O] = h[..., 0].reshape(n, O)
+        H[:, 1, 1 + B:1 + B + O] = h[..., 1].reshape(n, O)
+    H[:, 0, 1 + B + O:1 + B + O + K] = phi
+    H[:, 1, 1 + B + O + K:] = phi
     valid &= np.isfinite(u).all(axis=1)
     return H, valid
 
@@ -169,7 +228,8 @@ class SharedLawModel:
     """A herd under the shared law; same surface as :class:`HerdModel` (simulate, predict).
 
     Attributes: damping (N,), profile_coef (N, B), bases (one :class:`RbfBasis` per agent),
-    field_u/field_v (lists of (K_i,)), noise_cov (N, 2, 2), theta_se (optional list).
+    field_u/field_v (lists of (K_i,)), noise_cov (N, 2, 2), theta_se (optional list);
+    distinguished agents: own_agents (S names), own_profile (ψ'), own_coef (N, S, B').
     """
 
     agents: list[str]
@@ -185,11 +245,29 @@ class SharedLawModel:
     frame_id: str = 'map'
     datum: list | None = None
     meta: dict = field(default_factory=dict)
+    own_agents: list = field(default_factory=list)
+    own_profile: DistanceProfile | None = None
+    own_coef: np.ndarray | None = None
 
     kind = KIND
 
     def __post_init__(self):
         n = len(self.agents)
+        self.own_agents = [str(a) for a in self.own_agents]
+        unknown = [a for a in self.own_agents if a not in self.agents]
+        if unknown:
+            raise HerdInputError(f'own-profile agent(s) {", ".join(unknown)} are not in the '
+                                 f'herd ({", ".join(self.agents)})')
+        if len(set(self.own_agents)) != len(self.own_agents):
+            raise HerdInputError('own-profile agents are listed twice')
+        self.own_index = np.array([self.agents.index(a) for a in self.own_agents], dtype=int)
+        if self.own_agents:
+            if self.own_profile is None:
+                raise HerdInputError('own-profile agents need an own_profile basis')
+            self.own_coef = np.asarray(self.own_coef, dtype=float).reshape(
+                n, len(self.own_agents), self.own_profile.size)
+        else:
+            self.own_coef = np.zeros((n, 0, 0))
         self.damping = np.asarray(self.damping, dtype=float).reshape(n)
         self.profile_coef = np.asarray(self.profile_coef, dtype=float).reshape(n, self.profile.size)
         self.noise_cov = np.asarray(self.noise_cov, dtype=float).reshape(n, 2, 2)
@@ -213,17 +291,22 @@ class SharedLawModel:
         return len(self.agents)
 
     def theta(self, i: int) -> np.ndarray:
-        """θ_i = [damping, profile.., field_u.., field_v..]."""
-        return np.concatenate([[self.damping[i]], self.profile_coef[i], self.field_u[i],
-                               self.field_v[i]])
+        """θ_i = [damping, profile.., own_profile.., field_u.., field_v..]."""
+        return np.concatenate([[self.damping[i]], self.profile_coef[i],
+                               self.own_coef[i].ravel(), self.field_u[i], self.field_v[i]])
 
     def interaction(self, positions: np.ndarray) -> np.ndarray:
-        """Σ_{j: d<r} F_i(d_ij) e_ij for positions (N, 2) or (T, N, 2)."""
+        """Σ_{j: d<r} F_i(d_ij) e_ij (+ Σ_k H_ik(d_ik) e_ik over the distinguished agents)
+        for positions (N, 2) or (T, N, 2)."""
         p = np.asarray(positions, dtype=float)
         if p.ndim == 3:
             return np.stack([self.interaction(q) for q in p])
-        inter, _ = interaction_features(p, self.profile)            # (N, B, 2)
-        return np.einsum('nbk,nb->nk', inter, self.profile_coef)
+        inter, _ = interaction_features(p, self.profile, self.own_index)   # (N, B, 2)
+        out = np.einsum('nbk,nb->nk', inter, self.profile_coef)
+        if len(self.own_index):
+            h, _ = own_features(p, self.own_index, self.own_profile)        # (N, S, B', 2)
+            out = out + np.einsum('nsbk,nsb->nk', h, self.own_coef)
+        return out
 
     def environment(self, positions: np.ndarray) -> np.ndarray:
         """g_i(p_i) for positions (..., N, 2)."""
@@ -253,6 +336,9 @@ class SharedLawModel:
     def describe(self) -> str:
         lines = [f'SharedLawModel({KIND}, {self.n_agents} agents, dt={self.dt:g} s, radius '
                  f'{self.profile.radius:g} m, {self.profile.size} profile terms)']
+        if self.own_agents:
+            lines.append(f'  own profiles of {", ".join(self.own_agents)} (radius '
+                         f'{self.own_profile.radius:g} m, {self.own_profile.size} terms)')
         for i, a in enumerate(self.agents[:20]):
             lines.append(f'  {a}: damping {self.damping[i]:.4f}; {self.bases[i].size} centres')
         return '\n'.join(lines)
@@ -270,6 +356,11 @@ def shared_model_to_dict(model: SharedLawModel) -> dict:
     body['interaction_radius'] = float(model.profile.radius)
     body['profile_centers'] = float_list(model.profile.centers)
     body['profile_width'] = float(model.profile.width)
+    if model.own_agents:
+        body['own_profile_agents'] = list(model.own_agents)
+        body['own_profile_radius'] = float(model.own_profile.radius)
+        body['own_profile_centers'] = float_list(model.own_profile.centers)
+        body['own_profile_width'] = float(model.own_profile.width)
     for i, a in enumerate(model.agents):
         b = model.bases[i]
         if b.size == 0:
@@ -280,6 +371,8 @@ def shared_model_to_dict(model: SharedLawModel) -> dict:
                  'rbf_centers_y': float_list(b.centers[:, 1]), 'rbf_sigma': float_list(b.sigma),
                  'field_u': float_list(model.field_u[i]), 'field_v': float_list(model.field_v[i]),
                  'noise_cov': float_list(model.noise_cov[i])}
+        if model.own_agents:
+            entry['own_profile'] = float_list(model.own_coef[i].ravel())
         if model.theta_se is not None:
             entry['theta_se'] = float_list(model.theta_se[i])
         body[a] = entry
@@ -301,7 +394,20 @@ def shared_model_from_dict(body: dict, source: str = 'model') -> SharedLawModel:
                                   tuple(float(c) for c in need(body, 'profile_centers', 'model')),
                                   float(need(body, 'profile_width', 'model')))
         agents = [str(a) for a in need(body, 'agents', 'model')]
-        damping, coef, bases, fu, fv, q, se = [], [], [], [], [], [], []
+        own_keys = ('own_profile_agents', 'own_profile_radius', 'own_profile_centers',
+                    'own_profile_width')
+        have = [k for k in own_keys if k in body]
+        if have and len(have) != len(own_keys):
+            missing = [k for k in own_keys if k not in body]
+            raise HerdInputError(f'{source}: model has {have[0]!r} but not {missing[0]!r} '
+                                 f'(own profiles need all of {", ".join(own_keys)})')
+        own_agents = [str(a) for a in body.get('own_profile_agents', [])]
+        own_profile = (DistanceProfile(float(body['own_profile_radius']),
+                                       tuple(float(c) for c in body['own_profile_centers']),
+                                       float(body['own_profile_width']))
+                       if own_agents else None)
+        own_size = len(own_agents) * (own_profile.size if own_profile else 0)
+        damping, coef, bases, fu, fv, q, se, own = [], [], [], [], [], [], [], []
         for a in agents:
             e = need(body, a, 'model')
             for key in ('damping', 'profile', 'rbf_centers_x', 'rbf_centers_y', 'rbf_sigma',
@@ -310,6 +416,13 @@ def shared_model_from_dict(body: dict, source: str = 'model') -> SharedLawModel:
             if len(e['profile']) != profile.size:
                 raise HerdInputError(f'{source}: model.{a}.profile needs {profile.size} '
                                      f'entries (one per profile centre)')
+            if own_agents:
+                h = np.asarray(need(e, 'own_profile', f'model.{a}'), float)
+                if h.size != own_size:
+                    raise HerdInputError(f'{source}: model.{a}.own_profile needs {own_size} '
+                                         f'entries ({len(own_agents)} agents × '
+                                         f'{own_profile.size} centres)')
+                own.append(h)
             damping.append(float(e['damping']))
             coef.append(np.asarray(e['profile'], float))
             bases.append(RbfBasis(np.column_stack([np.asarray(e['rbf_centers_x'], float),
@@ -328,7 +441,9 @@ def shared_model_from_dict(body: dict, source: str = 'model') -> SharedLawModel:
                           field_u=fu, field_v=fv, noise_cov=np.array(q),
                           theta_se=None if any(s is None for s in se) else se,
                           frame_id=str(body.get('frame_id', 'map')), datum=body.get('datum'),
-                          meta=read_prediction_scale(body, len(agents), source))
+                          meta=read_prediction_scale(body, len(agents), source),
+                          own_agents=own_agents, own_profile=own_profile,
+                          own_coef=np.array(own) if own_agents else None)
 
 
 def save_shared_model(model: SharedLawModel, path, selection: dict | None = None):

@@ -42,6 +42,57 @@ def interaction_figure(summary: dict, path: Path):
     plt.close(fig)
 
 
+def profile_figure(fit: HerdFit, path: Path):
+    """The shared law's distance profiles: F_i(d) pooled over the neighbours, and H_ik(d) of
+    every distinguished agent k, each agent thin and the herd mean with its 95 % band
+    (from the agents' parameter covariances, the agents' fits being independent)."""
+    model = fit.model
+    blocks = [('pooled neighbours: F(d)', model.profile, model.profile_coef, 1, None)]
+    B = model.profile.size
+    for s, k in enumerate(model.own_agents):
+        Bo = model.own_profile.size
+        blocks.append((f'{k}: H(d), own profile', model.own_profile, model.own_coef[:, s],
+                       1 + B + s * Bo, k))
+    fig, axes = plt.subplots(1, len(blocks), figsize=(4.6 * len(blocks), 3.4), squeeze=False)
+    for ax, (title, prof, coef, start, who) in zip(axes.flat, blocks):
+        d = np.linspace(0.0, prof.radius, 200)
+        psi = prof.features(d)                                          # (D, B)
+        # the herd mean is over the ordinary agents; a distinguished agent's own pooled
+        # profile (how a dog keeps to the flock) is drawn apart
+        rows = [i for i, a in enumerate(model.agents)
+                if a != who and (who is not None or a not in model.own_agents)]
+        for i in rows:
+            ax.plot(d, psi @ coef[i], color='0.7', lw=0.6)
+        if who is None:
+            for k in model.own_agents:
+                ax.plot(d, psi @ coef[model.agents.index(k)], 'C1', lw=1.2, label=k)
+        mean = psi @ coef[rows].mean(axis=0)
+        var = np.zeros_like(d)
+        for i in rows:
+            a = model.agents[i]
+            C = fit.fits[a].theta_cov
+            # a distinguished agent's fit has no block with itself: later blocks sit earlier
+            at = start
+            if who is not None and a in model.own_agents \
+                    and model.own_agents.index(a) < model.own_agents.index(who):
+                at -= prof.size
+            sl = slice(at, at + prof.size)
+            var += np.einsum('db,bc,dc->d', psi, C[sl, sl], psi)
+        half = 1.96 * np.sqrt(var) / len(rows)
+        ax.fill_between(d, mean - half, mean + half, color='C0', alpha=0.3, label='mean ± 95 %')
+        ax.plot(d, mean, 'C0', lw=2)
+        ax.axhline(0, color='k', lw=0.6)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel('distance d (m)', fontsize=8)
+        ax.set_ylabel('m/s² (> 0 attracts)', fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.legend(fontsize=7)
+    fig.suptitle('Shared law: distance profiles (grey: each agent; blue: their mean)')
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def field_figure(fit: HerdFit, runs, path: Path, n_arrows: int = 20):
     """Fig. 3: each agent's environment vector field g_i with its centres and its path."""
     model = fit.model
@@ -144,6 +195,9 @@ def write_fit_figures(fit: HerdFit, summary: dict, train_runs, out_dir) -> list[
     if summary['interaction']:           # pairwise interactions in the model
         paths.append(out / 'fig2_interaction.png')
         interaction_figure(summary, paths[-1])
+    elif hasattr(fit.model, 'profile_coef') and np.any(fit.model.profile_coef):
+        paths.append(out / 'fig2_profiles.png')
+        profile_figure(fit, paths[-1])
     paths.append(out / 'fig3_field.png')
     field_figure(fit, train_runs, paths[-1])
     paths.append(out / 'fig4_whiteness.png')

@@ -68,3 +68,45 @@ def initial_positions(model: HerdModel, seed=0, spread: float = 30.0,
         if d.min() >= min_separation:
             return p
     return c + spread * np.column_stack([np.cos(np.arange(n)), np.sin(np.arange(n))])
+
+
+def _profile_coefficients(profile, force) -> np.ndarray:
+    """Least-squares coefficients c of Σ_b c_b ψ_b(d) ≈ ``force(d)`` on (0, r)."""
+    d = np.linspace(0.3, profile.radius * 0.999, 400)
+    c, *_ = np.linalg.lstsq(profile.features(d), force(d), rcond=None)
+    return c
+
+
+def make_driven_truth(n_sheep: int = 15, seed=0, dt: float = 1.0, noise_std: float = 0.1):
+    """A flock driven by a dog, in the shared law with the dog's own profile (the sheep-and-
+    dog case of :mod:`herd_ros.model.shared_law`), and its initial positions.
+
+    Sheep: damping U(0.85, 0.95), cohesion F(d) = 0.03 (d − 5)/5 · e^(−d/15) (repelled
+    below 5 m) pooled over the other sheep within 40 m, and flight from the dog
+    H(d) = −0.25 e^(−d/15) within 60 m (each sheep's gains × U(0.8, 1.2)). The dog: damping
+    0.9, drawn to the sheep beyond 15 m and repelled closer (F(d) = 0.02 (d − 15)/15), so it
+    hovers at the flock's edge and keeps pushing it; it moves erratically (process noise
+    3 noise_std against the sheep's noise_std, N(0, s² I)).
+    Returns (model, p0 (N, 2)): the sheep within ±4 m of the origin, the dog 25 m east."""
+    from herd_ros.model.shared_law import DistanceProfile, SharedLawModel
+    rng = np.random.default_rng(seed)
+    agents = [f'sheep_{k + 1}' for k in range(n_sheep)] + ['dog']
+    n = len(agents)
+    pooled = DistanceProfile.even(40.0, 6)
+    own = DistanceProfile.even(60.0, 6)
+    c_sheep = _profile_coefficients(pooled, lambda d: 0.03 * (d - 5.0) / 5.0 * np.exp(-d / 15))
+    c_dog = _profile_coefficients(pooled, lambda d: 0.02 * (d - 15.0) / 15.0)
+    h_sheep = _profile_coefficients(own, lambda d: -0.25 * np.exp(-d / 15.0))
+    gains = rng.uniform(0.8, 1.2, size=(n_sheep, 2))
+    coef = np.vstack([np.outer(gains[:, 0], c_sheep), c_dog])
+    own_coef = np.zeros((n, 1, own.size))
+    own_coef[:n_sheep, 0] = np.outer(gains[:, 1], h_sheep)
+    basis = RbfBasis(np.zeros((1, 2)), np.ones(1) * 1e3)
+    model = SharedLawModel(
+        agents=agents, dt=dt, profile=pooled,
+        damping=np.r_[rng.uniform(0.85, 0.95, n_sheep), 0.9], profile_coef=coef,
+        bases=[basis] * n, field_u=[np.zeros(1)] * n, field_v=[np.zeros(1)] * n,
+        noise_cov=np.eye(2) * (noise_std * np.r_[np.ones(n_sheep), 3.0])[:, None, None] ** 2,
+        own_agents=['dog'], own_profile=own, own_coef=own_coef)
+    p0 = np.vstack([rng.uniform(-4.0, 4.0, size=(n_sheep, 2)), [[25.0, 0.0]]])
+    return model, p0
