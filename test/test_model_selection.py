@@ -96,6 +96,8 @@ def test_known_truth_herds_select_interactions_and_field(n_agents):
     truth, run = known_herd(n_agents, 20000)
     sel = select_model([run.positions], list(run.agents), run.dt)
     assert sel.chosen.interactions and sel.chosen.grid is not None, sel.chosen
+    # no agent of the truth is distinguished: none gets its own profile
+    assert not sel.chosen.own, sel.chosen
     # and it predicts better than the baselines in cross-validation
     best = next(r['rms'] for r in sel.table if r['structure'] == sel.chosen)
     assert best < sel.baselines['constant_velocity'] < sel.baselines['stay_put']

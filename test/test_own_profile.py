@@ -82,15 +82,18 @@ def test_a_dog_with_its_own_profile_is_recovered_and_predicts_better(driven):
     truth, traj, train, test = driven
     agents = list(traj.agents)
     runs = [aligned_positions(r, agents) for r in train]
+    # default options: the selection's screen nominates the dog, and cross-validation keeps
+    # its own profile
+    auto = select_model(runs, agents, train[0].dt)
+    assert auto.chosen.interactions and auto.chosen.own == ('dog',), auto.chosen
+    assert auto.own_agents == ['dog']
     fits = {}
-    for own in ([], ['dog']):
-        sel = select_model(runs, agents, train[0].dt, own_agents=own)
-        fits[bool(own)] = (sel, fit_structure(train, sel.chosen, law=sel.law,
-                                              profile=sel.profile, bounds=sel.bounds,
-                                              own_agents=sel.own_agents,
-                                              own_profile=sel.own_profile).model)
+    for own, sel in ((True, auto), (False, select_model(runs, agents, train[0].dt,
+                                                         own_agents=[]))):
+        fits[own] = (sel, fit_structure(train, sel.chosen, law=sel.law, profile=sel.profile,
+                                        bounds=sel.bounds).model)
     sel, model = fits[True]
-    assert sel.chosen.interactions and model.own_agents == ['dog']
+    assert model.own_agents == ['dog'] and not fits[False][1].own_agents
     # the sheep flee the dog: over the distances at which the dog usually is (quartiles of
     # the data), every sheep's H(d) < 0 and the flock's mean H(d) within 35 % of the truth's
     # (one sheep's profile is confounded with its pooled one: the dog and the flock lie on
@@ -128,7 +131,7 @@ def test_model_file_robots_and_the_fit_command(driven, tmp_path, capsys):
                                       traj.positions[100], np.nan))
     np.testing.assert_allclose(robots.interaction(q), full[[0, 1, 15]], atol=1e-12)
     # the command line
-    csv = write_trajectory_csv(tmp_path / 'flock.csv', traj.slice(0, 1500))
+    csv = write_trajectory_csv(tmp_path / 'flock.csv', traj.slice(0, 800))
     out = tmp_path / 'm.yaml'
     assert main(['fit', str(csv), '-o', str(out), '--interact-with-own-profile', 'dog',
                  '--terms', 'damping+interactions', '--ridge', '0.01',
@@ -140,3 +143,18 @@ def test_model_file_robots_and_the_fit_command(driven, tmp_path, capsys):
     assert main(['fit', str(csv), '-o', str(out), '--interact-with-own-profile', 'wolf']) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'wolf' in err[0] and 'not in the data' in err[0]
+
+
+def test_a_whole_run_at_once_equals_step_by_step(driven):
+    """The dense path of SharedLawModel.interaction over a run (T, N, 2) against the
+    neighbour search of each step, with a missing sheep, a missing dog and two sheep on one
+    spot."""
+    truth, traj, _, _ = driven
+    p = traj.positions[:300].copy()
+    p[5, 3] = np.nan
+    p[7, 15] = np.nan
+    p[9, 2] = p[9, 4]
+    whole = truth.interaction(p)
+    steps = np.stack([truth.interaction(q) for q in p])
+    assert np.isfinite(whole).all()
+    np.testing.assert_allclose(whole, steps, rtol=0, atol=1e-13)

@@ -36,9 +36,10 @@ def true_theta_on(fitted_law, true_law):
 
 @pytest.mark.slow
 @pytest.mark.parametrize('n_agents,steps', [(3, 20000), (10, 6000)])
-def test_standard_errors_are_honest_over_20_seeds(n_agents, steps):
+def test_standard_errors_are_honest_over_10_seeds(n_agents, steps):
+    """Mean z² of every θ over 10 independent herds (≥ 1 700 z-values per case)."""
     ratios = []
-    for seed in range(20):
+    for seed in range(10):
         truth, run = herd(n_agents, seed, steps)
         fit = fit_herd([run], grid=GRID, bounds=BOUNDS)
         for a in truth.agents:

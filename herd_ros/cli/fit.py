@@ -65,7 +65,9 @@ def add_arguments(p):
     p.add_argument('--interact-with-own-profile', metavar='AGENT[,AGENT..]', default='',
                    help='distinguished agents (a dog, a robot, a leader) whose pull on every '
                         'other agent gets its own distance profile instead of being pooled '
-                        'into the shared law (implies the shared law)')
+                        'into the shared law (implies the shared law); none = never; '
+                        'default: with the shared law the selection screens for one such '
+                        'agent and keeps it only if cross-validation does')
 
 
 def _fmt(x, nd=3):
@@ -93,7 +95,12 @@ def _candidates(args):
 
 
 def run(args) -> int:
+    # '' = auto (the selection may nominate a driver); 'none' = no own profile
     own_agents = [a.strip() for a in args.interact_with_own_profile.split(',') if a.strip()]
+    if own_agents == ['none']:
+        own_agents = []
+    elif not own_agents:
+        own_agents = None
     if own_agents and args.online:
         raise HerdInputError('--interact-with-own-profile is for the batch fit; the online '
                              'estimator has no own profiles')
@@ -113,7 +120,9 @@ def run(args) -> int:
                            **filter_kwargs(args))
     train, test = split_runs(runs, args.train_fraction)
     agents = list(runs[0].agents)
-    bar = progress(total=len(agents), desc='cross-validating', unit='agent')
+    # a shared-law herd may get a second pass (a nominated driver): count, no fixed total
+    bar = progress(total=None if len(agents) > PAIRWISE_MAX_AGENTS or own_agents else
+                   len(agents), desc='cross-validating', unit='agent')
     selection = select_model([aligned_positions(r, agents) for r in train], agents,
                              train[0].dt, folds=args.folds, ridges=ridges, grids=grids,
                              terms=terms, bounds=bounds, min_visits=args.min_visits,

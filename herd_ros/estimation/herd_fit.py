@@ -159,6 +159,8 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
     field_grid = (FieldGrid(structure.grid[0], structure.grid[1], tuple(bounds))
                   if structure.grid is not None else None)
     shared = structure.interactions and law == 'shared'
+    if not own_agents and getattr(structure, 'own', ()):
+        own_agents, own_profile = structure.own, structure.own_profile
     own = check_own_agents(list(own_agents), agents) if shared else []
     if own and own_profile is None:
         raise HerdInputError('own-profile agents need their profile basis (own_profile)')

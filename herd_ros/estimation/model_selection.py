@@ -14,7 +14,11 @@ against 0.33 m for stay-put). The candidates, each a set of columns of the regre
   identified from hours of a large herd)
 * ``damping+interactions+field``
 
-each field at a few resolutions (:func:`field_grids`) and each with a ridge λ from
+and, with the shared law, the interaction candidates again with one **distinguished agent**
+given its own profile (a dog driving sheep; :mod:`herd_ros.model.shared_law`): unless the
+user names them, :func:`screen_for_driver` nominates the agent whose own profile would
+explain most of the others' one-step error, and cross-validation keeps it only if it earns
+its parameters like any other term; each field at a few resolutions (:func:`field_grids`) and each with a ridge λ from
 :data:`RIDGES` (the damping-only model with the smallest only: a ridge on the damping alone
 just pulls it towards stay-put) (λ as in :func:`~herd_ros.estimation.batch_ls.fit_agent`: a penalty
 λ‖Φ_j‖²θ_j² on every coefficient, the same as a ridge on standardised columns).
@@ -64,16 +68,23 @@ FIELD_CELLS = (4, 16, 64)
 SAMPLES_PER_FIELD_CELL = 40
 #: Contiguous blocks per run.
 FOLDS = 10
+#: A driver (an agent worth its own profile) is screened for in shared-law herds up to this
+#: size (the screen costs O(N²) per sampled step), on up to this many steps.
+SCREEN_MAX_AGENTS = 100
+SCREEN_STEPS = 4000
 TERMS = ('damping', 'damping+field', 'damping+interactions', 'damping+interactions+field')
 
 
 @dataclass(frozen=True)
 class Structure:
-    """One candidate: which terms, the field grid (or None), the ridge λ."""
+    """One candidate: which terms, the field grid (or None), the ridge λ, and the agents
+    with their own profile in the shared law's interactions (with its basis ψ')."""
 
     interactions: bool
     grid: tuple | None          # (nx, ny) or None (no field)
     ridge: float
+    own: tuple = ()
+    own_profile: DistanceProfile | None = None
 
     @property
     def terms(self) -> str:
@@ -82,7 +93,8 @@ class Structure:
 
     def label(self) -> str:
         g = f' {self.grid[0]}x{self.grid[1]}' if self.grid is not None else ''
-        return f'{self.terms}{g} λ={self.ridge:g}'
+        o = f' own profile {",".join(self.own)}' if self.own else ''
+        return f'{self.terms}{g}{o} λ={self.ridge:g}'
 
 
 @dataclass
@@ -257,61 +269,80 @@ def field_grids(bounds, samples_per_agent: int, cells=FIELD_CELLS) -> list[tuple
     return out
 
 
-def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float, *,
-                 folds: int = FOLDS, ridges=RIDGES, grids=None, terms=None,
-                 bounds=None, min_visits: int = DEFAULT_MIN_VISITS, law: str | None = None,
-                 own_agents=(), progress=None) -> Selection:
-    """Score every candidate by blocked CV and choose one (see the module docstring).
+def screen_for_driver(runs_positions, agents: list[str], dt: float, profile: DistanceProfile,
+                      max_steps: int = SCREEN_STEPS):
+    """The agent most worth an own profile: for every candidate k, how much of the others'
+    one-step error its own profile would remove beyond the damping and the pooled law.
 
-    Args:
-        runs_positions: (T, N, 2) arrays on one clock, columns in ``agents`` order.
-        grids: field grids to try (default :func:`field_grids`); ``[]`` = no field.
-        terms: restrict to these of :data:`TERMS` (default all).
-        ridges: ridge values to try.
-        bounds: field bounds (default: the bounding box of the finite positions).
-        law: 'pairwise' or 'shared' for the interactions (default by herd size; 'shared'
-            when there are ``own_agents``).
-        own_agents: distinguished agents with their own profile (shared law; module
-            docstring of :mod:`herd_ros.model.shared_law`).
-    """
+    Per agent i, on up to ``max_steps`` evenly spread steps: the residual r_i of
+    u_i^{τ+1} on [u_i^τ, pooled profile columns] and, per k ≠ i, the share of r_i's sum
+    of squares explained by k's own-profile columns Z_ik (B' columns ψ'(d_ik) e_ik, radius
+    :func:`own_profile_radius` of k) once the base columns are partialled out of them
+    (Frisch–Waugh–Lovell). score_k = Σ_{i≠k} that share. Returns (k, score) or None. It only
+    nominates: blocked cross-validation then decides whether the own profile is kept."""
     n = len(agents)
-    if n < 2:
-        raise HerdInputError('model selection needs at least two agents')
-    pts = np.concatenate([p.reshape(-1, 2) for p in runs_positions])
-    pts = pts[np.isfinite(pts).all(-1)]
-    if len(pts) < 3:
-        raise HerdInputError('no finite positions to select a model on')
-    if bounds is None:
-        bounds = FieldGrid.over(pts, 1, 1).bounds
-    own_agents = list(own_agents)
-    own = check_own_agents(own_agents, agents)
-    if own and law == 'pairwise':
-        raise HerdInputError('own profiles belong to the shared law (the pairwise law already '
-                             'gives every pair its own parameters): drop --law pairwise')
-    law = law or ('pairwise' if n <= PAIRWISE_MAX_AGENTS and not own else 'shared')
-    profile = own_profile = None
-    if law == 'shared':
-        radius = float(np.clip(4.0 * typical_spacing(runs_positions), 10.0, 200.0))
-        profile = DistanceProfile.even(radius, DEFAULT_PROFILE_SIZE)
-        if own:
-            own_profile = DistanceProfile.even(
-                own_profile_radius(runs_positions, own, radius), DEFAULT_PROFILE_SIZE)
-    steps = sum(max(p.shape[0] - 2, 0) for p in runs_positions)
-    if grids is None:
-        grids = field_grids(bounds, steps)
-    grids = [tuple(g) for g in grids]
-    terms = list(TERMS if terms is None else terms)
-    bad = [t for t in terms if t not in TERMS]
-    if bad:
-        raise HerdInputError(f'unknown terms {bad}; choose from {", ".join(TERMS)}')
-    want_field = any('field' in t for t in terms)
-    field_grid_list = grids if want_field else []
-    # sufficient statistics per agent (each agent has its own θ), per design, per block
-    designs = [None] + field_grid_list           # None: no field columns
+    samples = []
+    for p in runs_positions:
+        T = p.shape[0]
+        if T < 3:
+            continue
+        take = np.unique(np.linspace(0, T - 3, min(T - 2, max_steps)).astype(int))
+        samples.append((p[take], p[take + 1], p[take + 2]))
+    if not samples:
+        return None
+    p0 = np.concatenate([s[0] for s in samples])
+    p1 = np.concatenate([s[1] for s in samples])
+    p2 = np.concatenate([s[2] for s in samples])
+    u0, u1 = (p1 - p0) / dt, (p2 - p1) / dt
+    bases = [DistanceProfile.even(own_profile_radius(runs_positions, [k], profile.radius),
+                                  DEFAULT_PROFILE_SIZE) for k in range(n)]
+    score = np.zeros(n)
+    for i in range(n):
+        ok = np.isfinite(p0[:, i]).all(-1) & np.isfinite(u0[:, i]).all(-1) \
+            & np.isfinite(u1[:, i]).all(-1)
+        if ok.sum() < 4 * DEFAULT_PROFILE_SIZE:
+            continue
+        pt = p0[ok]
+        pooled = shared_columns(pt, i, profile)                    # (M, B, 2)
+        X = np.vstack([np.column_stack([u0[ok, i, 0], pooled[..., 0]]),
+                       np.column_stack([u0[ok, i, 1], pooled[..., 1]])])
+        y = np.concatenate([u1[ok, i, 0], u1[ok, i, 1]])
+        Q, _ = np.linalg.qr(X)
+        r = y - Q @ (Q.T @ y)
+        sse = float(r @ r)
+        if not sse > 0:
+            continue
+        for k in range(n):
+            if k == i:
+                continue
+            off = pt[:, k] - pt[:, i]
+            d = np.sqrt((off ** 2).sum(-1))
+            near = np.isfinite(d) & (d > 0)
+            with np.errstate(invalid='ignore', divide='ignore'):
+                e = np.where(near[:, None], off / np.where(near, d, 1.0)[:, None], 0.0)
+            psi = bases[k].features(np.where(near, d, np.inf))     # (M, B')
+            Z = np.vstack([psi * e[:, :1], psi * e[:, 1:]])
+            Z = Z - Q @ (Q.T @ Z)
+            keep = (Z ** 2).sum(0) > 1e-12 * max(float((Z ** 2).sum()), 1e-300)
+            if not keep.any():
+                continue
+            beta, *_ = np.linalg.lstsq(Z[:, keep], r, rcond=1e-10)
+            fitted = Z[:, keep] @ beta
+            score[k] += float(fitted @ fitted) / sse
+    k = int(np.argmax(score))
+    return (k, float(score[k])) if score[k] > 0 else None
+
+
+def _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds, min_visits,
+                      folds, own=(), own_profile=None, progress=None):
+    """Per agent: its field bases per grid and, per design, the sufficient statistics of
+    every block (:func:`_stats`; None for a block without samples)."""
     per_agent = []
     for i, a in enumerate(agents):
         bases = {}
-        for g in field_grid_list:
+        for g in designs:
+            if g is None:
+                continue
             grid = FieldGrid(g[0], g[1], tuple(bounds))
             visited = np.concatenate([p[:-2, i] for p in runs_positions if len(p) >= 3])
             visited = visited[np.isfinite(visited).all(-1)]
@@ -334,52 +365,136 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
         per_agent.append((bases, blocks))
         if progress is not None:
             progress(a)
-    # candidate list
-    candidates = []
-    for t in terms:
-        inter = 'interactions' in t
-        gl = field_grid_list if 'field' in t else [None]
-        for g in gl:
-            # a ridge on the damping alone only pulls it towards stay-put (scored anyway)
-            for lam in (ridges if t != 'damping' else sorted(ridges)[:1]):
-                candidates.append(Structure(inter, g, float(lam)))
+    return per_agent
+
+
+def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float, *,
+                 folds: int = FOLDS, ridges=RIDGES, grids=None, terms=None,
+                 bounds=None, min_visits: int = DEFAULT_MIN_VISITS, law: str | None = None,
+                 own_agents=None, progress=None) -> Selection:
+    """Score every candidate by blocked CV and choose one (see the module docstring).
+
+    Args:
+        runs_positions: (T, N, 2) arrays on one clock, columns in ``agents`` order.
+        grids: field grids to try (default :func:`field_grids`); ``[]`` = no field.
+        terms: restrict to these of :data:`TERMS` (default all).
+        ridges: ridge values to try.
+        bounds: field bounds (default: the bounding box of the finite positions).
+        law: 'pairwise' or 'shared' for the interactions (default by herd size; 'shared'
+            when there are ``own_agents``).
+        own_agents: distinguished agents with their own profile in every candidate with
+            interactions (shared law; module docstring of :mod:`herd_ros.model.shared_law`).
+            None (default): with the shared law and up to :data:`SCREEN_MAX_AGENTS` agents,
+            :func:`screen_for_driver` nominates one agent and its candidates with an own
+            profile are cross-validated beside the others; ``[]``: none.
+    """
+    n = len(agents)
+    if n < 2:
+        raise HerdInputError('model selection needs at least two agents')
+    pts = np.concatenate([p.reshape(-1, 2) for p in runs_positions])
+    pts = pts[np.isfinite(pts).all(-1)]
+    if len(pts) < 3:
+        raise HerdInputError('no finite positions to select a model on')
+    if bounds is None:
+        bounds = FieldGrid.over(pts, 1, 1).bounds
+    given = list(own_agents or [])
+    own = check_own_agents(given, agents)
+    if own and law == 'pairwise':
+        raise HerdInputError('own profiles belong to the shared law (the pairwise law already '
+                             'gives every pair its own parameters): drop --law pairwise')
+    law = law or ('pairwise' if n <= PAIRWISE_MAX_AGENTS and not own else 'shared')
+    profile = own_profile = None
+    if law == 'shared':
+        radius = float(np.clip(4.0 * typical_spacing(runs_positions), 10.0, 200.0))
+        profile = DistanceProfile.even(radius, DEFAULT_PROFILE_SIZE)
+        if own:
+            own_profile = DistanceProfile.even(
+                own_profile_radius(runs_positions, own, radius), DEFAULT_PROFILE_SIZE)
+    steps = sum(max(p.shape[0] - 2, 0) for p in runs_positions)
+    if grids is None:
+        grids = field_grids(bounds, steps)
+    grids = [tuple(g) for g in grids]
+    terms = list(TERMS if terms is None else terms)
+    bad = [t for t in terms if t not in TERMS]
+    if bad:
+        raise HerdInputError(f'unknown terms {bad}; choose from {", ".join(TERMS)}')
+    want_field = any('field' in t for t in terms)
+    field_grid_list = grids if want_field else []
+    designs = [None] + field_grid_list           # None: no field columns
+    # the herd's passes: the given own profiles (or none), then a nominated driver's
+    passes = [(tuple(agents[k] for k in own), own, own_profile)]
+    inter_terms = [t for t in terms if 'interactions' in t]
+    if (own_agents is None and law == 'shared' and inter_terms
+            and n <= SCREEN_MAX_AGENTS):
+        nominee = screen_for_driver(runs_positions, agents, dt, profile)
+        if nominee is not None:
+            k = nominee[0]
+            passes.append(((agents[k],), [k], DistanceProfile.even(
+                own_profile_radius(runs_positions, [k], profile.radius),
+                DEFAULT_PROFILE_SIZE)))
+    stats_of = {}
+    for p_i, (names, idx, prof) in enumerate(passes):
+        stats_of[names] = _block_statistics(
+            runs_positions, agents, dt, law, profile, designs, bounds, min_visits, folds,
+            idx, prof, progress=progress)
+    # candidate list: every term of the first pass; the nominee's interaction terms
+    candidates, pass_of = [], {}
+    for p_i, (names, _, prof) in enumerate(passes):
+        for t in terms:
+            inter = 'interactions' in t
+            if p_i > 0 and not inter:
+                continue
+            gl = field_grid_list if 'field' in t else [None]
+            for g in gl:
+                # a ridge on the damping alone only pulls it towards stay-put (scored anyway)
+                for lam in (ridges if t != 'damping' else sorted(ridges)[:1]):
+                    s = Structure(inter, g, float(lam), names if inter else (),
+                                  prof if inter and names else None)
+                    candidates.append(s)
+                    pass_of[s] = p_i
     if not candidates:
         raise HerdInputError('no candidate model to select from (check --terms/--grid)')
-    n_blocks = len(per_agent[0][1][None])
+    base_stats = stats_of[passes[0][0]]
+    n_blocks = len(base_stats[0][1][None])
     # per block: SSE (summed over agents) and sample count, per candidate and baselines
     sse = {s: np.zeros(n_blocks) for s in candidates}
     base = {'constant_velocity': np.zeros(n_blocks), 'stay_put': np.zeros(n_blocks)}
     count = np.zeros(n_blocks)
     n_params = {}
-    for i, (bases, blocks) in enumerate(per_agent):
-        for g in designs:
-            stats = blocks[g]
-            live = [k for k, st in enumerate(stats) if st is not None]
-            if not live:
-                continue
-            G_tot = sum(stats[k][0] for k in live)
-            c_tot = sum(stats[k][1] for k in live)
-            pa = stats[live[0]][0].shape[0] - 2 * (bases[g].size if g is not None else 0)
-            K = bases[g].size if g is not None else 0
-            if g is None:
-                for k in live:
-                    G_b, c_b, s_b, m_b = stats[k]
-                    base['stay_put'][k] += s_b
-                    base['constant_velocity'][k] += s_b - 2 * c_b[0] + G_b[0, 0]
-                    count[k] += m_b
-            for s in candidates:
-                if s.grid != g:
+    for i, (bases, blocks) in enumerate(base_stats):
+        stats = blocks[None]
+        for k, st in enumerate(stats):
+            if st is not None:
+                G_b, c_b, s_b, m_b = st
+                base['stay_put'][k] += s_b
+                base['constant_velocity'][k] += s_b - 2 * c_b[0] + G_b[0, 0]
+                count[k] += m_b
+    for p_i, (names, _, _) in enumerate(passes):
+        group = [s for s in candidates if pass_of[s] == p_i]
+        for i, (bases, blocks) in enumerate(stats_of[names]):
+            for g in designs:
+                stats = blocks[g]
+                live = [k for k, st in enumerate(stats) if st is not None]
+                if not live:
                     continue
-                cols = np.r_[0, (np.arange(1, pa) if s.interactions else []),
-                             (np.arange(pa, pa + 2 * K) if g is not None else [])].astype(int)
-                n_params[s] = n_params.get(s, 0) + len(cols) / n
-                for k in live:
-                    G_b, c_b, s_b, _ = stats[k]
-                    Gt = (G_tot - G_b)[np.ix_(cols, cols)]
-                    ct = (c_tot - c_b)[cols]
-                    theta = _solve(Gt, ct, s.ridge)
-                    Gb = G_b[np.ix_(cols, cols)]
-                    sse[s][k] += max(s_b - 2 * theta @ c_b[cols] + theta @ Gb @ theta, 0.0)
+                G_tot = sum(stats[k][0] for k in live)
+                c_tot = sum(stats[k][1] for k in live)
+                K = bases[g].size if g is not None else 0
+                pa = stats[live[0]][0].shape[0] - 2 * K
+                for s in group:
+                    if s.grid != g:
+                        continue
+                    cols = np.r_[0, (np.arange(1, pa) if s.interactions else []),
+                                 (np.arange(pa, pa + 2 * K) if g is not None else [])
+                                 ].astype(int)
+                    n_params[s] = n_params.get(s, 0) + len(cols) / n
+                    for k in live:
+                        G_b, c_b, s_b, _ = stats[k]
+                        Gt = (G_tot - G_b)[np.ix_(cols, cols)]
+                        ct = (c_tot - c_b)[cols]
+                        theta = _solve(Gt, ct, s.ridge)
+                        Gb = G_b[np.ix_(cols, cols)]
+                        sse[s][k] += max(s_b - 2 * theta @ c_b[cols] + theta @ Gb @ theta, 0.0)
     used = count > 0
     if not used.any():
         raise HerdInputError('no block has the three consecutive steps a sample needs')
@@ -399,13 +514,13 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
         r['excess'] = float(r['mse'] - best['mse'])
         r['excess_se'] = float(np.std(diff, ddof=1) / np.sqrt(nb)) if nb > 1 else 0.0
     eligible = [r for r in table if r['excess'] <= r['excess_se']]
-    chosen = min(eligible, key=lambda r: (r['n_params'], r['mse']))
+    chosen = min(eligible, key=lambda r: (r['n_params'], r['mse']))['structure']
     sel = Selection(law=law, profile=profile, bounds=tuple(float(b) for b in bounds),
                     table=table, folds=folds, samples=int(total),
                     baselines={m: dt * float(np.sqrt(v[used].sum() / total))
                                for m, v in base.items()},
-                    own_agents=own_agents, own_profile=own_profile)
-    sel.chosen = chosen['structure']
+                    own_agents=list(chosen.own), own_profile=chosen.own_profile)
+    sel.chosen = chosen
     return sel
 
 

@@ -83,6 +83,8 @@ from herd_ros.model.model_file import (add_prediction_scale, check_agent_id, dum
 from herd_ros.model.rbf_field import RbfBasis
 
 KIND = 'schwager2007_shared'
+#: Up to this many agents a whole run's interactions are summed over every pair at once.
+DENSE_MAX_AGENTS = 200
 DEFAULT_RADIUS = 60.0
 DEFAULT_PROFILE_SIZE = 6
 
@@ -300,12 +302,43 @@ class SharedLawModel:
         for positions (N, 2) or (T, N, 2)."""
         p = np.asarray(positions, dtype=float)
         if p.ndim == 3:
+            if p.shape[1] <= DENSE_MAX_AGENTS:
+                return self._interaction_dense(p)
             return np.stack([self.interaction(q) for q in p])
         inter, _ = interaction_features(p, self.profile, self.own_index)   # (N, B, 2)
         out = np.einsum('nbk,nb->nk', inter, self.profile_coef)
         if len(self.own_index):
             h, _ = own_features(p, self.own_index, self.own_profile)        # (N, S, B', 2)
             out = out + np.einsum('nsbk,nsb->nk', h, self.own_coef)
+        return out
+
+    def _interaction_dense(self, p: np.ndarray) -> np.ndarray:
+        """:meth:`interaction` of a whole run (T, N, 2) with every pair at once, in chunks
+        of time (the same sums as the per-step neighbour search, without a tree per step)."""
+        T, n, _ = p.shape
+        pooled = np.ones(n, bool)
+        pooled[self.own_index] = False
+        B = self.profile.size
+        chunk = max(1, int(4_000_000 // max(n * n * B, 1)))
+        out = np.zeros((T, n, 2))
+        for t0 in range(0, T, chunk):
+            q = p[t0:t0 + chunk]
+            off = q[:, None, :, :] - q[:, :, None, :]                 # [t, i, j] = p_j − p_i
+            d = np.sqrt((off ** 2).sum(-1))
+            with np.errstate(invalid='ignore'):
+                near = np.isfinite(d) & (d > 0)
+            with np.errstate(invalid='ignore', divide='ignore'):
+                e = np.where(near[..., None], off / np.where(near, d, 1.0)[..., None], 0.0)
+            use = near & (d < self.profile.radius) & pooled[None, None, :]
+            psi = self.profile.features(np.where(use, d, np.inf))     # (t, i, j, B)
+            force = np.einsum('tijb,ib->tij', psi, self.profile_coef)
+            acc = np.einsum('tij,tijk->tik', force, e)
+            for s, k in enumerate(self.own_index):
+                dk = np.where(near[:, :, k] & (d[:, :, k] < self.own_profile.radius),
+                              d[:, :, k], np.inf)
+                h = np.einsum('tib,ib->ti', self.own_profile.features(dk), self.own_coef[:, s])
+                acc = acc + h[..., None] * e[:, :, k]
+            out[t0:t0 + chunk] = acc
         return out
 
     def environment(self, positions: np.ndarray) -> np.ndarray:
