@@ -421,58 +421,21 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
     want_field = any('field' in t for t in terms)
     field_grid_list = grids if want_field else []
     designs = [None] + field_grid_list           # None: no field columns
-    # the herd's passes: the given own profiles (or none), then a nominated driver's
-    passes = [(tuple(agents[k] for k in own), own, own_profile)]
-    inter_terms = [t for t in terms if 'interactions' in t]
-    if (own_agents is None and law == 'shared' and inter_terms
-            and n <= SCREEN_MAX_AGENTS):
-        nominee = screen_for_driver(runs_positions, agents, dt, profile)
-        if nominee is not None:
-            k = nominee[0]
-            passes.append(((agents[k],), [k], DistanceProfile.even(
-                own_profile_radius(runs_positions, [k], profile.radius),
-                DEFAULT_PROFILE_SIZE)))
-    stats_of = {}
-    for p_i, (names, idx, prof) in enumerate(passes):
-        stats_of[names] = _block_statistics(
-            runs_positions, agents, dt, law, profile, designs, bounds, min_visits, folds,
-            idx, prof, progress=progress)
-    # candidate list: every term of the first pass; the nominee's interaction terms
-    candidates, pass_of = [], {}
-    for p_i, (names, _, prof) in enumerate(passes):
-        for t in terms:
+    def candidates_of(names, prof, pass_terms, pass_grids):
+        out = []
+        for t in pass_terms:
             inter = 'interactions' in t
-            if p_i > 0 and not inter:
-                continue
-            gl = field_grid_list if 'field' in t else [None]
-            for g in gl:
+            for g in (pass_grids if 'field' in t else [None]):
                 # a ridge on the damping alone only pulls it towards stay-put (scored anyway)
                 for lam in (ridges if t != 'damping' else sorted(ridges)[:1]):
-                    s = Structure(inter, g, float(lam), names if inter else (),
-                                  prof if inter and names else None)
-                    candidates.append(s)
-                    pass_of[s] = p_i
-    if not candidates:
-        raise HerdInputError('no candidate model to select from (check --terms/--grid)')
-    base_stats = stats_of[passes[0][0]]
-    n_blocks = len(base_stats[0][1][None])
-    # per block: SSE (summed over agents) and sample count, per candidate and baselines
-    sse = {s: np.zeros(n_blocks) for s in candidates}
-    base = {'constant_velocity': np.zeros(n_blocks), 'stay_put': np.zeros(n_blocks)}
-    count = np.zeros(n_blocks)
-    n_params = {}
-    for i, (bases, blocks) in enumerate(base_stats):
-        stats = blocks[None]
-        for k, st in enumerate(stats):
-            if st is not None:
-                G_b, c_b, s_b, m_b = st
-                base['stay_put'][k] += s_b
-                base['constant_velocity'][k] += s_b - 2 * c_b[0] + G_b[0, 0]
-                count[k] += m_b
-    for p_i, (names, _, _) in enumerate(passes):
-        group = [s for s in candidates if pass_of[s] == p_i]
-        for i, (bases, blocks) in enumerate(stats_of[names]):
-            for g in designs:
+                    out.append(Structure(inter, g, float(lam), names if inter else (),
+                                         prof if inter and names else None))
+        return out
+
+    def score(per_agent, group, pass_designs):
+        """Add every candidate's held-out SSE per block (and its parameter count)."""
+        for bases, blocks in per_agent:
+            for g in pass_designs:
                 stats = blocks[g]
                 live = [k for k, st in enumerate(stats) if st is not None]
                 if not live:
@@ -495,6 +458,49 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
                         theta = _solve(Gt, ct, s.ridge)
                         Gb = G_b[np.ix_(cols, cols)]
                         sse[s][k] += max(s_b - 2 * theta @ c_b[cols] + theta @ Gb @ theta, 0.0)
+
+    # first pass: every term, with the given own profiles (or none)
+    names0 = tuple(agents[k] for k in own)
+    candidates = candidates_of(names0, own_profile, terms, field_grid_list)
+    if not candidates:
+        raise HerdInputError('no candidate model to select from (check --terms/--grid)')
+    base_stats = _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds,
+                                   min_visits, folds, own, own_profile, progress=progress)
+    n_blocks = len(base_stats[0][1][None])
+    # per block: SSE (summed over agents) and sample count, per candidate and baselines
+    sse = {s: np.zeros(n_blocks) for s in candidates}
+    base = {'constant_velocity': np.zeros(n_blocks), 'stay_put': np.zeros(n_blocks)}
+    count = np.zeros(n_blocks)
+    n_params = {}
+    for bases, blocks in base_stats:
+        for k, st in enumerate(blocks[None]):
+            if st is not None:
+                G_b, c_b, s_b, m_b = st
+                base['stay_put'][k] += s_b
+                base['constant_velocity'][k] += s_b - 2 * c_b[0] + G_b[0, 0]
+                count[k] += m_b
+    score(base_stats, candidates, designs)
+    # second pass (shared law, no agents named): a nominated driver's own profile in the
+    # interaction terms, on the no-field design and the first pass's best interaction grid
+    inter_terms = [t for t in terms if 'interactions' in t]
+    if (own_agents is None and law == 'shared' and inter_terms
+            and n <= SCREEN_MAX_AGENTS and count.sum() > 0):
+        nominee = screen_for_driver(runs_positions, agents, dt, profile)
+        if nominee is not None:
+            k = nominee[0]
+            prof = DistanceProfile.even(own_profile_radius(runs_positions, [k], profile.radius),
+                                        DEFAULT_PROFILE_SIZE)
+            best_inter = min((s for s in candidates if s.interactions),
+                             key=lambda s: sse[s].sum())
+            grids2 = [best_inter.grid] if best_inter.grid is not None else []
+            group = candidates_of((agents[k],), prof, inter_terms, grids2)
+            for s in group:
+                sse[s] = np.zeros(n_blocks)
+            stats2 = _block_statistics(runs_positions, agents, dt, law, profile,
+                                       [None] + grids2, bounds, min_visits, folds, [k], prof,
+                                       progress=progress)
+            score(stats2, group, [None] + grids2)
+            candidates += group
     used = count > 0
     if not used.any():
         raise HerdInputError('no block has the three consecutive steps a sample needs')

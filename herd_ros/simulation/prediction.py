@@ -211,7 +211,8 @@ def _standardised_residuals(model, positions: np.ndarray) -> np.ndarray:
 
 
 def noise_level(model, positions: np.ndarray, k: int = 1,
-                halflife: float = NOISE_LEVEL_HALFLIFE) -> np.ndarray:
+                halflife: float = NOISE_LEVEL_HALFLIFE, m2: np.ndarray | None = None
+                ) -> np.ndarray:
     """Running noise level ℓ (T, N) of every agent, known at the origin of a k-step
     prediction of each target step: an exponentially weighted mean (half-life ``halflife``
     steps) of m²/2 over the one-step residuals up to the origin (1 before any).
@@ -221,7 +222,8 @@ def noise_level(model, positions: np.ndarray, k: int = 1,
     wide while they rest and too narrow while they move. Scaling the covariance by ℓ took
     the 90 % ellipse of the held-out baboons from 80 % to 90 % coverage (measured).
     """
-    m2 = _standardised_residuals(model, positions)
+    if m2 is None:                        # (the caller may have them already)
+        m2 = _standardised_residuals(model, positions)
     T, N = m2.shape
     lam = 0.5 ** (1.0 / float(halflife))
     level = np.ones((T, N))
@@ -243,12 +245,16 @@ def calibrate_prediction_scale(model, runs_positions) -> list[float]:
     (ℓ the running :func:`noise_level`) hold 90 % of the agent's one-step residuals on
     ``runs_positions`` (the training data): s_i = q₀.₉(m²/ℓ) / χ²₂(0.9). Real animals'
     residuals are heavy-tailed, so the Gaussian ellipse of Q_i alone is not a 90 % ellipse;
-    this calibrates the 90 % level (and that level only)."""
+    this calibrates the 90 % level (and that level only). A run longer than
+    :data:`CALIBRATION_STEPS` is sampled in 20 evenly spread contiguous windows (a quantile
+    needs no more, and the running level forgets within ~100 steps)."""
     z = []
     for p in runs_positions:
         if len(p) < 3:
             continue
-        z.append(_standardised_residuals(model, p) / noise_level(model, p))
+        for q in _windows(np.asarray(p, dtype=float), CALIBRATION_STEPS, 20):
+            m2 = _standardised_residuals(model, q)
+            z.append(m2 / noise_level(model, q, m2=m2))
     if not z:
         return [1.0] * len(model.agents)
     z = np.concatenate(z)
@@ -258,6 +264,21 @@ def calibrate_prediction_scale(model, runs_positions) -> list[float]:
         out.append(float(max(np.quantile(zi, 0.9) / CHI2_2_90, 1e-6)) if len(zi) >= 10
                    else 1.0)
     return out
+
+
+#: Steps of a run used at most to calibrate the prediction scale.
+CALIBRATION_STEPS = 50_000
+
+
+def _windows(p: np.ndarray, total: int, count: int) -> list[np.ndarray]:
+    """The whole run if it has at most ``total`` steps, else ``count`` evenly spread
+    contiguous windows of ``total // count`` steps."""
+    T = p.shape[0]
+    if T <= total:
+        return [p]
+    size = total // count
+    starts = np.linspace(0, T - size, count).astype(int)
+    return [p[s:s + size] for s in starts]
 
 
 def predict_ahead(model, positions: np.ndarray, k: int = 1) -> np.ndarray:
