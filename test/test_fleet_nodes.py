@@ -144,17 +144,23 @@ def test_stale_odometry_gives_zero_commands_within_one_period(graph):
     assert all(m.linear.x == m.linear.y == m.angular.z == 0.0 for m in late)
 
 
-def test_controller_starts_from_a_saved_model_file_alone(graph):
+@pytest.mark.parametrize('kind', ['pairwise', 'shared law with a dog'])
+def test_controller_starts_from_a_saved_model_file_alone(graph, kind, tmp_path):
     g, ear = graph
+    model, n = g.model, 3
+    if kind != 'pairwise':          # a shared-law model file, the dog with its own profile
+        from herd_ros.model.shared_law import save_shared_model
+        from herd_ros.synthesis.known_truth import make_driven_truth
+        model, n = save_shared_model(make_driven_truth(5)[0], tmp_path / 'flock.yaml'), 6
     cmds = ear.record(Twist, '/fleet/robot_1/cmd_vel')
     diags = ear.record(DiagnosticArray, '/diagnostics')
-    proc = g.start('controller', '--params-file', str(g.model))
+    proc = g.start('controller', '--params-file', str(model))
     assert ear.spin(15.0, until=lambda: len(cmds) >= 5 and diags)
     assert proc.poll() is None, g.output('controller')
     # no odometry at all: every command is an explicit stop
     assert all(m.linear.x == m.linear.y == m.angular.z == 0.0 for _, m in cmds)
     text = ' '.join(s.message for _, d in diags for s in d.status)
-    assert 'model of 3 animals' in text
+    assert f'model of {n} animals' in text
 
 
 def test_live_model_from_the_estimator_topic(graph):

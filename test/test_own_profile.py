@@ -138,6 +138,8 @@ def test_model_file_robots_and_the_fit_command(driven, tmp_path, capsys):
                  '--report', str(tmp_path / 'rep')]) == 0
     fitted = load_any_model(out)
     assert fitted.own_agents == ['dog']
+    body = yaml.safe_load(out.read_text())['/**']['ros__parameters']['model']
+    assert body['selection']['own_profile_agents'] == ['dog']
     assert (tmp_path / 'rep' / 'fig2_profiles.png').stat().st_size > 10_000
     capsys.readouterr()
     assert main(['fit', str(csv), '-o', str(out), '--interact-with-own-profile', 'wolf']) == 2

@@ -14,11 +14,15 @@ from herd_ros.model.model_file import load_model_body, model_from_dict
 
 def load_any_model(path):
     """The model in ``path`` (pairwise or shared law), with one clear error otherwise."""
-    body = load_model_body(path)
+    return any_model_from_dict(load_model_body(path), source=str(path))
+
+
+def any_model_from_dict(body: dict, source: str = 'model'):
+    """The ``model:`` mapping of either kind (a file's, or a node's ``model.*`` parameters)."""
     kind = body.get('kind', herd_model.KIND)
     if kind == herd_model.KIND:
-        return model_from_dict(body, source=str(path))
+        return model_from_dict(body, source=source)
     if kind == shared_law.KIND:
-        return shared_law.shared_model_from_dict(body, source=str(path))
-    raise HerdInputError(f'{path}: model kind {kind!r} is neither {herd_model.KIND!r} nor '
+        return shared_law.shared_model_from_dict(body, source=source)
+    raise HerdInputError(f'{source}: model kind {kind!r} is neither {herd_model.KIND!r} nor '
                          f'{shared_law.KIND!r}')

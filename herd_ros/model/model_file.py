@@ -205,6 +205,8 @@ def selection_entry(selection: dict) -> dict:
           method: blocked cross-validation (10 blocks per run) of the one-step error, ...
           terms: damping+interactions+field   # the terms kept; left-out terms are zero
           interaction_law: pairwise           # or shared, or none
+          own_profile_agents: [dog]           # shared law: agents with their own profile
+                                              # (absent if none)
           grid: [4.0, 4.0]                    # field grid (absent without a field; the
                                               # model then has one centre of weight 0)
           ridge: 0.0
@@ -216,6 +218,8 @@ def selection_entry(selection: dict) -> dict:
     cv = selection['cv_rms']
     out = {'method': selection['method'], 'terms': selection['terms'],
            'interaction_law': selection['interaction_law'] or 'none'}
+    if selection.get('own_profile_agents'):
+        out['own_profile_agents'] = [str(a) for a in selection['own_profile_agents']]
     if selection['grid']:
         out['grid'] = [float(g) for g in selection['grid']]
     out.update({'ridge': float(selection['ridge']), 'loss': selection.get('loss', 'l2'),

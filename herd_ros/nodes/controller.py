@@ -32,7 +32,8 @@ from herd_ros.control.herd_follower import (HerdFollower, follower_for,
                                             shared_model_from_parameter_matrix)
 from herd_ros.control.safety import Fence, Obstacles, safe_velocity, stale_mask
 from herd_ros.errors import HerdInputError
-from herd_ros.model.model_file import check_agent_id, model_from_dict
+from herd_ros.model.any_model import any_model_from_dict
+from herd_ros.model.model_file import check_agent_id
 from herd_ros.model.rbf_field import FieldGrid
 from herd_ros.nodes.flocking_mode import FlockingPolicy
 from herd_ros.nodes.imitation_mode import ImitationPolicyMode
@@ -202,7 +203,7 @@ class HerdModelPolicy:
                 node = node.setdefault(part, {})
             node[leaf] = value
         try:
-            return model_from_dict(body, source='parameters model.*')
+            return any_model_from_dict(body, source='parameters model.*')
         except HerdInputError as exc:
             raise ParameterError(str(exc)) from None
 
