@@ -108,9 +108,12 @@ def field_figure(fit: HerdFit, runs, path: Path, n_arrows: int = 20):
         for r in runs:
             p = aligned_positions(r, model.agents)[:, i]
             ax.plot(p[:, 0], p[:, 1], color='0.6', lw=0.4)
-        ax.quiver(pts[:, 0], pts[:, 1], g[:, 0], g[:, 1], color='C3', angles='xy')
-        ax.plot(basis.centers[:, 0], basis.centers[:, 1], 'k+', ms=6)
-        ax.set_title(f'{a}: field g (arrows), centres (+), path', fontsize=8)
+        if np.any(g):                      # a model without a field has no arrows
+            ax.quiver(pts[:, 0], pts[:, 1], g[:, 0], g[:, 1], color='C3', angles='xy')
+            ax.plot(basis.centers[:, 0], basis.centers[:, 1], 'k+', ms=6)
+            ax.set_title(f'{a}: field g (arrows), centres (+), path', fontsize=8)
+        else:
+            ax.set_title(f'{a}: path (no field in the model)', fontsize=8)
         ax.set_aspect('equal')
         ax.tick_params(labelsize=7)
     for ax in list(axes.flat)[model.n_agents:]:
