@@ -83,6 +83,7 @@ def run_publisher(n, seconds, rate):
     gc.collect()
     gc.freeze()
     print(json.dumps({'ready': True}), flush=True)
+    sys.stdin.readline()        # the measurer's go: it has matched every odometry topic too
     rng = np.random.default_rng(0)
     home = rng.uniform(-500, 500, (n, 2))
     period = 1.0 / rate
@@ -125,9 +126,13 @@ class Measurer:
         self.arrival = []
         self.received = dict.fromkeys(agents, 0)
         self.counters = {}
-        for a in agents:
-            node.create_subscription(Odometry, f'/herd/{a}/odom',
-                                     lambda m, a=a: self.on_odom(a, m), 50)
+        self.subscriptions = [node.create_subscription(Odometry, f'/herd/{a}/odom',
+                                                       lambda m, a=a: self.on_odom(a, m), 50)
+                              for a in agents]
+
+    def matched(self) -> bool:
+        """Every odometry topic has the node's publisher (discovery done both ways)."""
+        return all(s.get_publisher_count() > 0 for s in self.subscriptions)
 
     def listen_to_diagnostics(self):
         from diagnostic_msgs.msg import DiagnosticArray
@@ -185,7 +190,8 @@ def run_once(n, seconds, rate, executor_name, env):
         pub_proc = subprocess.Popen([sys.executable, __file__, '--role', 'publisher',
                                      '--collars', str(n), '--seconds', str(seconds),
                                      '--rate', str(rate)],
-                                    env=env, stdout=subprocess.PIPE, text=True)
+                                    env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                    text=True)
         lines = []
         threading.Thread(target=lambda: lines.extend(
             json.loads(x) for x in pub_proc.stdout if x.strip()), daemon=True).start()
@@ -194,9 +200,14 @@ def run_once(n, seconds, rate, executor_name, env):
             return any(key in x for x in list(lines)) or pub_proc.poll() is not None
 
         spin_for(2000, lambda: publisher_said('ready') or publisher_said('error'))
-        setup_s = time.monotonic() - t_setup
         if not any('ready' in x for x in lines):
             raise RuntimeError(f'publisher failed: {lines}')
+        # the first fixes must not wait for this process' own discovery of the node
+        if not spin_for(1800, measurer.matched):
+            raise RuntimeError('the odometry topics were never matched')
+        setup_s = time.monotonic() - t_setup
+        pub_proc.stdin.write('go\n')
+        pub_proc.stdin.flush()
         import gc
         gc.collect()
         gc.freeze()     # this process' own full GC passes must not count as the node's latency
