@@ -39,9 +39,15 @@ def herd_statistics(runs: list[HerdTrajectory] | HerdTrajectory) -> dict[str, di
         ss = np.concatenate(speeds[a])
         dd = dd[np.isfinite(dd)]
         ss = ss[np.isfinite(ss)]
-        out[a] = {'mean_distance': float(dd.mean()), 'std_distance': float(dd.std()),
-                  'mean_speed': float(ss.mean()), 'std_speed': float(ss.std())}
+        # an agent absent from every run (a collar that never reported in that part of
+        # the data) has no statistics: NaN, without numpy's empty-slice warnings
+        out[a] = {'mean_distance': _or_nan(dd, np.mean), 'std_distance': _or_nan(dd, np.std),
+                  'mean_speed': _or_nan(ss, np.mean), 'std_speed': _or_nan(ss, np.std)}
     return out
+
+
+def _or_nan(values: np.ndarray, stat) -> float:
+    return float(stat(values)) if len(values) else float('nan')
 
 
 def relative_differences(reference: dict, other: dict) -> dict[str, dict[str, float]]:
