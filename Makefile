@@ -43,10 +43,8 @@ setup: $(STAMP)
 $(VENV)/bin/python:
 	$(PYTHON) -m venv $(VENV)
 
-# --no-compile: Python byte-compiles what it imports on first use; precompiling every module
-# of scipy, pandas, matplotlib ... took ~30 s of a fresh `make test` (measured 68 s vs 40 s).
 $(STAMP): $(VENV)/bin/python setup.py setup.cfg package.xml Makefile
-	$(PIP) install --no-compile $(ROS_WHEELS) $(PY_DEPS) $(DEV_DEPS)
+	$(PIP) install $(ROS_WHEELS) $(PY_DEPS) $(DEV_DEPS)
 	$(PIP) install --no-deps --no-build-isolation .
 	@touch $@
 
