@@ -155,7 +155,9 @@ def test_on_real_herds_the_selected_fit_is_never_worse_than_damping_only(real_fi
     rms = {m: float(np.sqrt(np.nanmean(np.concatenate(v)))) for m, v in sq.items()}
     print(name, sel.chosen.label(), {m: round(v, 4) for m, v in rms.items()})
     assert rms['selected'] <= rms['damping_only'] * (1 + 1e-6), rms
-    assert rms['selected'] < min(rms['constant_velocity'], rms['stay_put']), rms
+    # issue acceptance: at least 5 % better than the better naive baseline (measured:
+    # baboons 15 %, steers 7.5 % with the velocity memory the selection keeps for them)
+    assert rms['selected'] <= 0.95 * min(rms['constant_velocity'], rms['stay_put']), rms
 
 
 @pytest.mark.slow

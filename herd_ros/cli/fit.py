@@ -11,12 +11,14 @@ from herd_ros.cli.ingest import add_filter_arguments, filter_kwargs
 from herd_ros.data_sources import load_runs
 from herd_ros.errors import HerdInputError
 from herd_ros.estimation.herd_fit import aligned_positions, fit_structure, split_runs
-from herd_ros.estimation.model_selection import (FIELD_CELLS, FOLDS, PAIRWISE_MAX_AGENTS,
+from herd_ros.estimation.model_selection import (FIELD_CELLS, FOLDS, MEMORIES,
+                                                 PAIRWISE_MAX_AGENTS,
                                                  RIDGES, TERMS, select_model)
 from herd_ros.estimation.validation import skill_lines, validate
 from herd_ros.model.model_file import save_model, selection_entry
 from herd_ros.model.shared_law import save_shared_model
 from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS
+from herd_ros.model.velocity_memory import check_memory
 
 HELP = 'fit the herd model to a trajectory CSV, GPS CSV or bag; write the model file'
 
@@ -38,6 +40,10 @@ def add_arguments(p):
                    help='ridge λ on column-scaled parameters (0 = plain least squares); '
                         'auto = chosen by cross-validation among %s'
                         % ', '.join(f'{r:g}' for r in RIDGES))
+    p.add_argument('--velocity-memory', metavar='KAPPA', default='auto',
+                   help='κ in (0, 1]: the damping acts on the exponentially weighted velocity '
+                        'ū ← (1−κ)ū + κu (1 = the paper\'s last velocity); auto = 1, or one of '
+                        '%s if cross-validation keeps it' % ', '.join(f'{k:g}' for k in MEMORIES))
     p.add_argument('--loss', choices=('l2', 'robust'), default='l2',
                    help='l2: least squares; robust: outlier-robust IRLS (Mahalanobis-weighted, '
                         'bounded influence), for data with bursts of bad positions')
@@ -94,6 +100,16 @@ def _candidates(args):
     return terms, grids, ridges
 
 
+def _memories(args) -> tuple[float, tuple]:
+    """(κ of every candidate, other κ tried) from ``--velocity-memory``."""
+    if args.velocity_memory == 'auto':
+        return 1.0, MEMORIES
+    try:
+        return check_memory(args.velocity_memory), ()
+    except HerdInputError as err:
+        raise HerdInputError(f'--velocity-memory takes auto or a number: {err}') from None
+
+
 def run(args) -> int:
     # '' = auto (the selection may nominate a driver); 'none' = no own profile
     own_agents = [a.strip() for a in args.interact_with_own_profile.split(',') if a.strip()]
@@ -107,6 +123,10 @@ def run(args) -> int:
     if own_agents and args.law == 'pairwise':
         raise HerdInputError('--interact-with-own-profile needs the shared law (the pairwise '
                              'law already gives every pair its own parameters)')
+    memory, memories = _memories(args)
+    if args.online and args.velocity_memory != 'auto':
+        raise HerdInputError('--velocity-memory is for the batch fit; the online estimator '
+                             'damps the last velocity (κ = 1)')
     if args.online:
         from herd_ros.cli.fit_online import run_online
         if args.law == 'auto':
@@ -122,12 +142,13 @@ def run(args) -> int:
     agents = list(runs[0].agents)
     # a shared-law herd may get a second pass (a nominated driver): count, no fixed total
     bar = progress(total=None if len(agents) > PAIRWISE_MAX_AGENTS or own_agents else
-                   len(agents), desc='cross-validating', unit='agent')
+                   len(agents) * (1 + bool(memories)), desc='cross-validating', unit='agent')
     selection = select_model([aligned_positions(r, agents) for r in train], agents,
                              train[0].dt, folds=args.folds, ridges=ridges, grids=grids,
                              terms=terms, bounds=bounds, min_visits=args.min_visits,
                              law=None if args.law == 'auto' else args.law,
-                             own_agents=own_agents, progress=lambda a: bar.update(1))
+                             own_agents=own_agents, progress=lambda a: bar.update(1),
+                             memory=memory, memories=memories)
     bar.close()
     bar = progress(total=len(agents), desc='fitting agents', unit='agent')
     fit = fit_structure(train, selection.chosen, law=selection.law, profile=selection.profile,

@@ -84,7 +84,7 @@ def robot_herd_model(model: HerdModel, assignment: list[str],
                                field_u=law.field_u, field_v=law.field_v,
                                noise_cov=law.noise_cov)
     return HerdModel(agents=robots, dt=model.dt, laws=laws, frame_id=model.frame_id,
-                     datum=model.datum)
+                     datum=model.datum, meta={'velocity_memory': model.velocity_memory})
 
 
 class HerdFollower:
@@ -129,7 +129,9 @@ class HerdFollower:
                 active: np.ndarray | None = None) -> np.ndarray:
         """New velocities (R, 2) after ``elapsed`` seconds of the law from u (R, 2) at p (R, 2).
 
-        u ← u + α[(a − 1)u + Σf + g] + √α L ξ in ⌈α⌉ sub-steps, α = elapsed/Δt (module doc).
+        u ← u + α[(a − 1)u + Σf + g] + √α L ξ in ⌈α⌉ sub-steps, α = elapsed/Δt (module doc);
+        with a velocity memory κ < 1, u ← u + α[a ū − u + Σf + g] and ū ← ū + α κ (u − ū),
+        ū carried from tick to tick.
         """
         u = np.asarray(velocity, dtype=float).reshape(-1, 2).copy()
         p = np.asarray(positions, dtype=float).reshape(-1, 2).copy()
@@ -138,14 +140,29 @@ class HerdFollower:
             return u
         steps = int(np.ceil(alpha - 1e-12))
         beta = alpha / steps
+        kappa = self.model.velocity_memory
+        mean = self._mean_velocity(u, kappa)
         for _ in range(steps):
-            change = beta * ((self.damping[:, None] - 1.0) * u + self.drift(p, active))
+            damped = ((self.damping[:, None] - 1.0) * u if kappa == 1.0
+                      else self.damping[:, None] * mean - u)         # a ū − u
+            change = beta * (damped + self.drift(p, active))
             if self.noise:
                 xi = self.rng.standard_normal(u.shape)
                 change += np.sqrt(beta) * np.einsum('kij,kj->ki', self.noise_factor, xi)
             p = p + beta * self.dt * u
             u = u + change
+            mean = u if kappa == 1.0 else mean + beta * kappa * (u - mean)
+        self._mean = mean
         return u
+
+    def _mean_velocity(self, u: np.ndarray, kappa: float) -> np.ndarray:
+        """ū of every robot (velocity memory, :mod:`herd_ros.model.velocity_memory`): the
+        one carried from the last tick, restarted at u where there is none (first tick, a
+        robot that was inactive); u itself at κ = 1."""
+        mean = getattr(self, '_mean', None)
+        if kappa == 1.0 or mean is None or mean.shape != u.shape:
+            return u.copy()
+        return np.where(np.isfinite(mean), mean, u)
 
 
 def model_from_parameter_matrix(theta: np.ndarray, agents: list[str], dt: float,
@@ -209,7 +226,7 @@ def robot_shared_model(model, assignment: list[str], robots: list[str] | None = 
                           field_u=[model.field_u[i] for i in idx],
                           field_v=[model.field_v[i] for i in idx],
                           noise_cov=model.noise_cov[idx], frame_id=model.frame_id,
-                          datum=model.datum)
+                          datum=model.datum, meta={'velocity_memory': model.velocity_memory})
 
 
 class SharedLawFollower(HerdFollower):

@@ -139,7 +139,8 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
     :mod:`herd_ros.estimation.robust`) of a selected structure (:mod:`model_selection`): the damping
     always, the interactions (pairwise law, or the shared profile when ``law='shared'``)
     and the field on ``structure.grid`` over ``bounds`` only if selected, ridge
-    ``structure.ridge``. Terms left out are zero in the model (and in its ``theta_se``).
+    ``structure.ridge``, velocity memory ``structure.memory`` (:mod:`velocity_memory`).
+    Terms left out are zero in the model (and in its ``theta_se``).
     ``own_agents`` with ``own_profile``: distinguished agents of the shared law (their own
     profile; see :mod:`herd_ros.model.shared_law`).
 
@@ -219,6 +220,9 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
             theta_se=[o[1] for o in out], frame_id=frame_id, datum=datum)
     else:
         model = HerdModel(agents=agents, dt=dt, laws=laws, frame_id=frame_id, datum=datum)
+    memory = float(getattr(structure, 'memory', 1.0))
+    if memory != 1.0:
+        model.meta['velocity_memory'] = memory
     model.meta['prediction_scale'] = calibrate_prediction_scale(model, positions)
     return HerdFit(model=model, fits=fits,
                    grid=field_grid if field_grid is not None else FieldGrid(1, 1, tuple(bounds)),

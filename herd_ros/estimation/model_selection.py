@@ -48,7 +48,7 @@ model — which the full model nests — is chosen, so a selected fit is not wor
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -56,6 +56,7 @@ from herd_ros.errors import HerdInputError
 from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS, FieldGrid, RbfBasis
 from herd_ros.model.regressors import AgentRegression, interaction_columns, velocities
 from herd_ros.model.shared_law import DEFAULT_PROFILE_SIZE, DistanceProfile
+from herd_ros.model.velocity_memory import check_memory, memory_velocities
 
 #: Up to this many agents the interactions are the paper's pairwise law; more get the
 #: shared distance profile.
@@ -73,6 +74,8 @@ FOLDS = 10
 SCREEN_MAX_AGENTS = 100
 SCREEN_STEPS = 4000
 TERMS = ('damping', 'damping+field', 'damping+interactions', 'damping+interactions+field')
+#: Velocity memories κ tried on the structure chosen with κ = 1 (:mod:`velocity_memory`).
+MEMORIES = (0.6, 0.35, 0.2)
 
 
 @dataclass(frozen=True)
@@ -85,6 +88,7 @@ class Structure:
     ridge: float
     own: tuple = ()
     own_profile: DistanceProfile | None = None
+    memory: float = 1.0         # velocity memory κ (1: the paper's u^τ)
 
     @property
     def terms(self) -> str:
@@ -94,7 +98,8 @@ class Structure:
     def label(self) -> str:
         g = f' {self.grid[0]}x{self.grid[1]}' if self.grid is not None else ''
         o = f' own profile {",".join(self.own)}' if self.own else ''
-        return f'{self.terms}{g}{o} λ={self.ridge:g}'
+        m = f' memory {self.memory:g}' if self.memory != 1.0 else ''
+        return f'{self.terms}{g}{o}{m} λ={self.ridge:g}'
 
 
 @dataclass
@@ -121,6 +126,7 @@ class Selection:
                       f'one-step error, one-standard-error rule',
             'terms': c.terms, 'grid': list(c.grid) if c.grid else [],
             'ridge': float(c.ridge), 'interaction_law': self.law if c.interactions else '',
+            'velocity_memory': float(c.memory),
             'own_profile_agents': list(self.own_agents) if c.interactions else [],
             'field_bounds': [float(b) for b in self.bounds],
             'cv_rms': {'selected': float(self._row(c)['rms']),
@@ -182,20 +188,20 @@ def own_profile_radius(runs_positions, own, floor: float) -> float:
 
 def agent_samples(positions: np.ndarray, i: int, dt: float, law: str,
                   profile: DistanceProfile | None, own=(),
-                  own_profile: DistanceProfile | None = None):
+                  own_profile: DistanceProfile | None = None, memory: float = 1.0):
     """The damping/interaction columns of agent i over one run (see :mod:`regressors`).
 
-    Returns (A_x, A_y, y_x, y_y, points) with A = [u, interaction columns…] (pairwise:
-    e, −e/d per neighbour; shared: the B profile columns, then S·B' of the distinguished
-    agents ``own``), points = p_i^τ (M, 2) for the field; samples need agent i at τ, τ+1,
-    τ+2."""
+    Returns (A_x, A_y, y_x, y_y, points) with A = [ū, interaction columns…] (ū the
+    velocity with memory κ = ``memory``, u itself at 1; pairwise: e, −e/d per neighbour;
+    shared: the B profile columns, then S·B' of the distinguished agents ``own``),
+    points = p_i^τ (M, 2) for the field; samples need agent i at τ, τ+1, τ+2."""
     p = np.asarray(positions, dtype=float)
     if p.shape[0] < 3:
         return None
     u = velocities(p, dt)
+    ubar = memory_velocities(u[:, i:i + 1], memory)[:, 0]
     pt = p[:-2]
-    ok = np.isfinite(p[:-2, i]).all(-1) & np.isfinite(p[1:-1, i]).all(-1) \
-        & np.isfinite(p[2:, i]).all(-1)
+    ok = _sample_mask(p, i)
     if not ok.any():
         return None
     if law == 'pairwise':
@@ -205,9 +211,29 @@ def agent_samples(positions: np.ndarray, i: int, dt: float, law: str,
     else:
         inter = shared_columns(pt[ok], i, profile, own, own_profile)
         cx, cy = inter[..., 0], inter[..., 1]
-    A_x = np.column_stack([u[:-1][ok, i, 0], cx])
-    A_y = np.column_stack([u[:-1][ok, i, 1], cy])
+    A_x = np.column_stack([ubar[:-1][ok, 0], cx])
+    A_y = np.column_stack([ubar[:-1][ok, 1], cy])
     return A_x, A_y, u[1:][ok, i, 0], u[1:][ok, i, 1], pt[ok, i, :]
+
+
+def _sample_mask(p: np.ndarray, i: int) -> np.ndarray:
+    """Steps τ with agent i at τ, τ+1 and τ+2 (a regression sample): (T−2,) bool."""
+    return np.isfinite(p[:-2, i]).all(-1) & np.isfinite(p[1:-1, i]).all(-1) \
+        & np.isfinite(p[2:, i]).all(-1)
+
+
+def _with_memory(stats, A_x, A_y, F, y_x, y_y, ubar):
+    """:func:`_stats` with the damping column replaced by ``ubar`` (M, 2), from the stats of
+    the same samples: only row/column 0 of G and c[0] change (O(M·p), not O(M·p²))."""
+    G, c, s, m = stats
+    ux, uy = ubar[:, 0], ubar[:, 1]
+    row = np.concatenate([ux @ A_x + uy @ A_y, F.T @ ux, F.T @ uy])
+    row[0] = ux @ ux + uy @ uy
+    G = G.copy()
+    G[0, :], G[:, 0] = row, row
+    c = c.copy()
+    c[0] = ux @ y_x + uy @ y_y
+    return G, c, s, m
 
 
 def _stats(A_x, A_y, F, y_x, y_y):
@@ -334,10 +360,14 @@ def screen_for_driver(runs_positions, agents: list[str], dt: float, profile: Dis
 
 
 def _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds, min_visits,
-                      folds, own=(), own_profile=None, progress=None):
+                      folds, own=(), own_profile=None, progress=None, memory=1.0,
+                      memories=None):
     """Per agent: its field bases per grid and, per design, the sufficient statistics of
-    every block (:func:`_stats`; None for a block without samples)."""
-    per_agent = []
+    every block (:func:`_stats`; None for a block without samples), for velocity memory
+    ``memory``; with ``memories``, a dict {κ: that list} for each κ of them instead (the
+    samples are formed once, only the damping column changes: :func:`_with_memory`)."""
+    kappas = [memory] if memories is None else list(memories)
+    out = {k: [] for k in kappas}
     for i, a in enumerate(agents):
         bases = {}
         for g in designs:
@@ -347,31 +377,42 @@ def _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds,
             visited = np.concatenate([p[:-2, i] for p in runs_positions if len(p) >= 3])
             visited = visited[np.isfinite(visited).all(-1)]
             bases[g] = RbfBasis.from_grid(grid, visited, min_visits)
-        blocks = {g: [] for g in designs}
+        blocks = {k: {g: [] for g in designs} for k in kappas}
         for p in runs_positions:
             T = p.shape[0]
             if T < 3:
                 continue
             edges = np.linspace(0, T - 2, min(folds, T - 2) + 1).astype(int)
             for b0, b1 in zip(edges[:-1], edges[1:]):
-                smp = agent_samples(p[b0:b1 + 2], i, dt, law, profile, own, own_profile)
+                q = p[b0:b1 + 2]
+                smp = agent_samples(q, i, dt, law, profile, own, own_profile, memory)
+                if smp is not None and memories is not None:
+                    u = velocities(q[:, i:i + 1], dt)
+                    ok = _sample_mask(q, i)
+                    ubars = {k: memory_velocities(u, k)[:-1, 0][ok] for k in kappas}
                 for g in designs:
                     if smp is None:
-                        blocks[g].append(None)
+                        for k in kappas:
+                            blocks[k][g].append(None)
                         continue
                     A_x, A_y, y_x, y_y, where = smp
                     F = bases[g].features(where) if g is not None else np.zeros((len(y_x), 0))
-                    blocks[g].append(_stats(A_x, A_y, F, y_x, y_y))
-        per_agent.append((bases, blocks))
+                    st = _stats(A_x, A_y, F, y_x, y_y)
+                    for k in kappas:
+                        blocks[k][g].append(st if memories is None else
+                                            _with_memory(st, A_x, A_y, F, y_x, y_y, ubars[k]))
+        for k in kappas:
+            out[k].append((bases, blocks[k]))
         if progress is not None:
             progress(a)
-    return per_agent
+    return out[memory] if memories is None else out
 
 
 def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float, *,
                  folds: int = FOLDS, ridges=RIDGES, grids=None, terms=None,
                  bounds=None, min_visits: int = DEFAULT_MIN_VISITS, law: str | None = None,
-                 own_agents=None, progress=None) -> Selection:
+                 own_agents=None, progress=None, memory: float = 1.0,
+                 memories=MEMORIES) -> Selection:
     """Score every candidate by blocked CV and choose one (see the module docstring).
 
     Args:
@@ -387,7 +428,14 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
             None (default): with the shared law and up to :data:`SCREEN_MAX_AGENTS` agents,
             :func:`screen_for_driver` nominates one agent and its candidates with an own
             profile are cross-validated beside the others; ``[]``: none.
+        memory: the velocity memory κ of every candidate (:mod:`velocity_memory`; 1 = the
+            paper's model).
+        memories: other κ tried on the structure the one-standard-error rule chooses
+            among the candidates above (a last pass; ``()`` = none). κ counts as one
+            parameter of the herd, so a memory is kept only if it earns it.
     """
+    memory = check_memory(memory)
+    memories = [check_memory(k) for k in memories if float(k) != memory]
     n = len(agents)
     if n < 2:
         raise HerdInputError('model selection needs at least two agents')
@@ -429,7 +477,7 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
                 # a ridge on the damping alone only pulls it towards stay-put (scored anyway)
                 for lam in (ridges if t != 'damping' else sorted(ridges)[:1]):
                     out.append(Structure(inter, g, float(lam), names if inter else (),
-                                         prof if inter and names else None))
+                                         prof if inter and names else None, memory))
         return out
 
     def score(per_agent, group, pass_designs):
@@ -465,7 +513,8 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
     if not candidates:
         raise HerdInputError('no candidate model to select from (check --terms/--grid)')
     base_stats = _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds,
-                                   min_visits, folds, own, own_profile, progress=progress)
+                                   min_visits, folds, own, own_profile, progress=progress,
+                                   memory=memory)
     n_blocks = len(base_stats[0][1][None])
     # per block: SSE (summed over agents) and sample count, per candidate and baselines
     sse = {s: np.zeros(n_blocks) for s in candidates}
@@ -498,18 +547,47 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
                 sse[s] = np.zeros(n_blocks)
             stats2 = _block_statistics(runs_positions, agents, dt, law, profile,
                                        [None] + grids2, bounds, min_visits, folds, [k], prof,
-                                       progress=progress)
+                                       progress=progress, memory=memory)
             score(stats2, group, [None] + grids2)
             candidates += group
     used = count > 0
     if not used.any():
         raise HerdInputError('no block has the three consecutive steps a sample needs')
+    table, chosen = _one_standard_error(candidates, sse, n_params, count, dt)
+    # last pass: the velocity memory of the chosen structure (one parameter of the herd)
+    if memories:
+        own_k = [agents.index(a) for a in chosen.own]
+        design = [chosen.grid]
+        stats3 = _block_statistics(runs_positions, agents, dt, law, profile, design, bounds,
+                                   min_visits, folds, own_k, chosen.own_profile,
+                                   progress=progress, memory=memory, memories=memories)
+        for kappa in memories:
+            s_k = replace(chosen, memory=kappa)
+            sse[s_k] = np.zeros(n_blocks)
+            score(stats3[kappa], [s_k], design)
+            n_params[s_k] = n_params.get(s_k, 0) + 1.0 / n
+            candidates.append(s_k)
+        table, chosen = _one_standard_error(candidates, sse, n_params, count, dt)
+    total = count[used].sum()
+    sel = Selection(law=law, profile=profile, bounds=tuple(float(b) for b in bounds),
+                    table=table, folds=folds, samples=int(total),
+                    baselines={m: dt * float(np.sqrt(v[used].sum() / total))
+                               for m, v in base.items()},
+                    own_agents=list(chosen.own), own_profile=chosen.own_profile)
+    sel.chosen = chosen
+    return sel
+
+
+def _one_standard_error(candidates, sse, n_params, count, dt):
+    """The table of candidates (CV RMS, MSE, excess over the best and its standard error,
+    paired over the blocks) and the structure the one-standard-error rule chooses."""
+    used = count > 0
     total = count[used].sum()
     table = []
     mse_blocks = {}
     for s in candidates:
         mse_blocks[s] = sse[s][used] / count[used]
-        table.append({'structure': s, 'n_params': round(n_params.get(s, 0), 1),
+        table.append({'structure': s, 'n_params': round(n_params.get(s, 0), 2),
                       'rms': dt * np.sqrt(sse[s][used].sum() / total),
                       'mse': sse[s][used].sum() / total})
     best = min(table, key=lambda r: r['mse'])
@@ -520,14 +598,7 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
         r['excess'] = float(r['mse'] - best['mse'])
         r['excess_se'] = float(np.std(diff, ddof=1) / np.sqrt(nb)) if nb > 1 else 0.0
     eligible = [r for r in table if r['excess'] <= r['excess_se']]
-    chosen = min(eligible, key=lambda r: (r['n_params'], r['mse']))['structure']
-    sel = Selection(law=law, profile=profile, bounds=tuple(float(b) for b in bounds),
-                    table=table, folds=folds, samples=int(total),
-                    baselines={m: dt * float(np.sqrt(v[used].sum() / total))
-                               for m, v in base.items()},
-                    own_agents=list(chosen.own), own_profile=chosen.own_profile)
-    sel.chosen = chosen
-    return sel
+    return table, min(eligible, key=lambda r: (r['n_params'], r['mse']))['structure']
 
 
 def check_own_agents(own_agents, agents) -> list[int]:
@@ -547,7 +618,8 @@ def structured_regression(runs_positions, i: int, agents: list[str], dt: float,
     """The regression of agent i for ``structure`` over whole runs (for the final fit by
     :func:`~herd_ros.estimation.batch_ls.fit_agent`). A distinguished agent's block with
     itself (zero columns) is left out: ``fit_structure`` puts zeros back."""
-    parts = [agent_samples(p, i, dt, law, profile, own, own_profile) for p in runs_positions]
+    parts = [agent_samples(p, i, dt, law, profile, own, own_profile, structure.memory)
+             for p in runs_positions]
     parts = [s for s in parts if s is not None]
     if not parts:
         raise HerdInputError(f'agent {agents[i]}: no three consecutive steps to fit on')

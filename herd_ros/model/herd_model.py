@@ -25,6 +25,7 @@ import numpy as np
 
 from herd_ros.errors import HerdInputError
 from herd_ros.model.rbf_field import RbfBasis
+from herd_ros.model.velocity_memory import VelocityMemory
 
 KIND = 'schwager2007'
 
@@ -102,8 +103,9 @@ def pairwise_geometry(positions: np.ndarray):
 
 
 @dataclass
-class HerdModel:
-    """A learned herd: the laws of all agents on one clock ``dt`` (s) in frame ``frame_id``."""
+class HerdModel(VelocityMemory):
+    """A learned herd: the laws of all agents on one clock ``dt`` (s) in frame ``frame_id``;
+    ``predict_one_step`` and ``residuals`` (eq. 8) from :class:`VelocityMemory`."""
 
     agents: list[str]
     dt: float
@@ -173,23 +175,9 @@ class HerdModel:
         return self.interaction(positions) + self.environment(positions)
 
     def next_velocity(self, velocity: np.ndarray, positions: np.ndarray) -> np.ndarray:
-        """E[u^{τ+1}] = a_i u^τ + Σ f + g (eq. 2 without noise); shapes (..., N, 2)."""
+        """E[u^{τ+1}] = a_i u^τ + Σ f + g (eq. 2 without noise); shapes (..., N, 2). With a
+        velocity memory κ < 1, ``velocity`` is the mean ū^τ (:mod:`velocity_memory`)."""
         return self.damping[:, None] * velocity + self.drift(positions)
-
-    def predict_one_step(self, positions: np.ndarray) -> np.ndarray:
-        """Eq. 8 for every step of a run: positions (T, N, 2) -> p̂ (T−2, N, 2) for τ+2 = 2..T−1.
-
-        p̂^{τ+2} = p^{τ+1} + Δt (a u^τ + Σ f(p^τ) + g(p^τ)),  u^τ = (p^{τ+1} − p^τ)/Δt.
-        """
-        p = np.asarray(positions, dtype=float)
-        u = np.diff(p, axis=0) / self.dt
-        return p[1:-1] + self.dt * self.next_velocity(u[:-1], p[:-2])
-
-    def residuals(self, positions: np.ndarray) -> np.ndarray:
-        """w^τ = u^{τ+1} − (a u^τ + Σ f + g) for a run: (T, N, 2) -> (T−2, N, 2)."""
-        p = np.asarray(positions, dtype=float)
-        u = np.diff(p, axis=0) / self.dt
-        return u[1:] - self.next_velocity(u[:-1], p[:-2])
 
     def describe(self) -> str:
         """A readable summary (as ``print(model)`` gives)."""

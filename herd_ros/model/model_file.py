@@ -9,6 +9,7 @@
           dt: 60.0
           frame_id: map
           datum: [lat, lon, alt]
+          velocity_memory: 1.0      # optional (absent = 1, the paper's model)
           agents: [cow_1, cow_2]
           cow_1: {damping, neighbors, theta1, theta2, rbf_centers_x, rbf_centers_y,
                   rbf_sigma, field_u, field_v, noise_cov, theta_se}
@@ -30,6 +31,7 @@ import yaml
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import KIND, AgentLaw, HerdModel
 from herd_ros.model.rbf_field import RbfBasis
+from herd_ros.model.velocity_memory import check_memory
 
 ROS_TOKEN = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 AGENT_KEYS = ('damping', 'neighbors', 'theta1', 'theta2', 'rbf_centers_x', 'rbf_centers_y',
@@ -89,23 +91,39 @@ def model_to_dict(model: HerdModel) -> dict:
         if law.theta_se is not None:
             entry['theta_se'] = float_list(law.theta_se)
         body[a] = entry
-    add_prediction_scale(body, model)
+    add_model_meta(body, model)
     return body
 
 
-def add_prediction_scale(body: dict, model) -> None:
-    """``prediction_scale`` (one per agent, agents order): the factor on Δt²Q_i that makes
-    the 90 % prediction ellipse of :func:`~herd_ros.simulation.prediction.prediction_covariance`
-    hold 90 % of the training residuals (written by ``herd-ros fit``; 1 if absent)."""
-    scale = model.meta.get('prediction_scale') if model.meta else None
+def add_model_meta(body: dict, model) -> None:
+    """The model-wide keys kept in ``model.meta``:
+
+    * ``prediction_scale`` (one per agent, agents order): the factor on Δt²Q_i that makes
+      the 90 % prediction ellipse of
+      :func:`~herd_ros.simulation.prediction.prediction_covariance` hold 90 % of the
+      training residuals (written by ``herd-ros fit``; 1 if absent);
+    * ``velocity_memory`` κ (:mod:`herd_ros.model.velocity_memory`; written when κ < 1,
+      absent = 1, the paper's model).
+    """
+    meta = model.meta or {}
+    scale = meta.get('prediction_scale')
     if scale is not None:
         body['prediction_scale'] = float_list(scale)
+    memory = float(meta.get('velocity_memory', 1.0))
+    if memory != 1.0:
+        body['velocity_memory'] = memory
 
 
-def read_prediction_scale(body: dict, n_agents: int, source: str) -> dict:
-    """The ``meta`` entry for :func:`add_prediction_scale`'s key, checked."""
+def read_model_meta(body: dict, n_agents: int, source: str) -> dict:
+    """The ``meta`` entries for :func:`add_model_meta`'s keys, checked."""
+    meta = {}
+    if 'velocity_memory' in body:
+        try:
+            meta['velocity_memory'] = check_memory(body['velocity_memory'])
+        except HerdInputError as err:
+            raise HerdInputError(f'{source}: model.{err}') from None
     if 'prediction_scale' not in body:
-        return {}
+        return meta
     try:
         scale = np.asarray(body['prediction_scale'], dtype=float).ravel()
     except (TypeError, ValueError):
@@ -114,7 +132,8 @@ def read_prediction_scale(body: dict, n_agents: int, source: str) -> dict:
     if len(scale) != n_agents or not (np.isfinite(scale).all() and (scale > 0).all()):
         raise HerdInputError(f'{source}: model.prediction_scale needs one positive number per '
                              f'agent ({n_agents})')
-    return {'prediction_scale': scale}
+    meta['prediction_scale'] = scale
+    return meta
 
 
 def model_from_dict(body: dict, source: str = 'model') -> HerdModel:
@@ -152,7 +171,7 @@ def model_from_dict(body: dict, source: str = 'model') -> HerdModel:
             raise HerdInputError(f'{source}: model.{a}: malformed numbers ({exc})') from None
     return HerdModel(agents=agents, dt=float(need(body, 'dt', 'model')), laws=laws,
                      frame_id=str(body.get('frame_id', 'map')), datum=body.get('datum'),
-                     meta=read_prediction_scale(body, len(agents), source))
+                     meta=read_model_meta(body, len(agents), source))
 
 
 def dump_parameters(model_body: dict, node: str = '/**') -> str:
@@ -210,6 +229,8 @@ def selection_entry(selection: dict) -> dict:
           grid: [4.0, 4.0]                    # field grid (absent without a field; the
                                               # model then has one centre of weight 0)
           ridge: 0.0
+          velocity_memory: 0.35               # κ chosen (absent at 1; the model's own
+                                              # velocity_memory key is what is used)
           loss: l2                            # or robust (--loss robust)
           cv_rms: 0.0707                      # one-step RMS (m) of the chosen structure
           cv_rms_constant_velocity: 0.0720
@@ -222,6 +243,8 @@ def selection_entry(selection: dict) -> dict:
         out['own_profile_agents'] = [str(a) for a in selection['own_profile_agents']]
     if selection['grid']:
         out['grid'] = [float(g) for g in selection['grid']]
+    if float(selection.get('velocity_memory', 1.0)) != 1.0:
+        out['velocity_memory'] = float(selection['velocity_memory'])
     out.update({'ridge': float(selection['ridge']), 'loss': selection.get('loss', 'l2'),
                 'cv_rms': float(cv['selected']),
                 'cv_rms_constant_velocity': float(cv['constant_velocity']),

@@ -77,10 +77,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from herd_ros.errors import HerdInputError
-from herd_ros.model.model_file import (add_prediction_scale, check_agent_id, dump_parameters,
-                                       float_list, load_model_body, read_prediction_scale,
+from herd_ros.model.model_file import (add_model_meta, check_agent_id, dump_parameters,
+                                       float_list, load_model_body, read_model_meta,
                                        write_atomic)
 from herd_ros.model.rbf_field import RbfBasis
+from herd_ros.model.velocity_memory import VelocityMemory
 
 KIND = 'schwager2007_shared'
 #: Up to this many agents a whole run's interactions are summed over every pair at once.
@@ -226,7 +227,7 @@ def shared_rows(p_prev: np.ndarray, p_cur: np.ndarray, dt: float, profile: Dista
 
 
 @dataclass
-class SharedLawModel:
+class SharedLawModel(VelocityMemory):
     """A herd under the shared law; same surface as :class:`HerdModel` (simulate, predict).
 
     Attributes: damping (N,), profile_coef (N, B), bases (one :class:`RbfBasis` per agent),
@@ -355,17 +356,6 @@ class SharedLawModel:
         """E[u^{τ+1}] = a_i u^τ + Σ F e + g."""
         return self.damping[:, None] * velocity + self.drift(positions)
 
-    def predict_one_step(self, positions):
-        """Eq. 8: (T, N, 2) -> p̂ (T−2, N, 2)."""
-        p = np.asarray(positions, dtype=float)
-        u = np.diff(p, axis=0) / self.dt
-        return p[1:-1] + self.dt * self.next_velocity(u[:-1], p[:-2])
-
-    def residuals(self, positions):
-        p = np.asarray(positions, dtype=float)
-        u = np.diff(p, axis=0) / self.dt
-        return u[1:] - self.next_velocity(u[:-1], p[:-2])
-
     def describe(self) -> str:
         lines = [f'SharedLawModel({KIND}, {self.n_agents} agents, dt={self.dt:g} s, radius '
                  f'{self.profile.radius:g} m, {self.profile.size} profile terms)']
@@ -409,7 +399,7 @@ def shared_model_to_dict(model: SharedLawModel) -> dict:
         if model.theta_se is not None:
             entry['theta_se'] = float_list(model.theta_se[i])
         body[a] = entry
-    add_prediction_scale(body, model)
+    add_model_meta(body, model)
     return body
 
 
@@ -474,7 +464,7 @@ def shared_model_from_dict(body: dict, source: str = 'model') -> SharedLawModel:
                           field_u=fu, field_v=fv, noise_cov=np.array(q),
                           theta_se=None if any(s is None for s in se) else se,
                           frame_id=str(body.get('frame_id', 'map')), datum=body.get('datum'),
-                          meta=read_prediction_scale(body, len(agents), source),
+                          meta=read_model_meta(body, len(agents), source),
                           own_agents=own_agents, own_profile=own_profile,
                           own_coef=np.array(own) if own_agents else None)
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import HerdModel
+from herd_ros.model.velocity_memory import remember
 from herd_ros.trajectory import HerdTrajectory
 
 
@@ -46,12 +47,15 @@ def simulate(model: HerdModel, steps: int, initial_positions: np.ndarray,
     L = noise_factors(model.noise_cov) * noise_scale
     out = np.empty((steps, n, 2))
     out[0] = p
+    kappa = getattr(model, 'velocity_memory', 1.0)
+    mean_u = u                              # ū^0 = u^0 (velocity memory; ū = u at κ = 1)
     for tau in range(1, steps):
-        u_next = model.next_velocity(u, p)
+        u_next = model.next_velocity(mean_u, p)
         if noise:
             u_next = u_next + np.einsum('nij,nj->ni', L, rng.standard_normal((n, 2)))
         p = p + model.dt * u
         u = u_next
+        mean_u = remember(kappa, mean_u, u)
         out[tau] = p
         if progress is not None and tau % 1000 == 0:
             progress(1000)

@@ -14,6 +14,7 @@ import numpy as np
 
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import HerdModel
+from herd_ros.model.velocity_memory import remember
 from herd_ros.trajectory import HerdTrajectory
 
 METHODS = ('model', 'constant_velocity', 'stay_put')
@@ -82,16 +83,17 @@ def k_step_rms(model: HerdModel, runs: list[HerdTrajectory], ks=(1, 5, 10, 30),
         if len(starts) > max_starts:
             starts = starts[np.linspace(0, len(starts) - 1, max_starts).astype(int)]
         pos = p[starts + 1].copy()               # p^{τ+1}
-        vel = (p[starts + 1] - p[starts]) / model.dt  # u^τ
-        anchor, anchor_v = pos.copy(), vel.copy()
+        anchor_v = (p[starts + 1] - p[starts]) / model.dt  # u^τ
+        anchor = pos.copy()
+        vel = model.memory_velocities(p)[1][starts]        # ū^τ (u^τ at κ = 1)
         gain = np.zeros_like(a) if a is not None else None
-        # u^{τ+1} = a u^τ + drift(p^τ); p^{τ+2} = p^{τ+1} + Δt u^{τ+1}
+        # u^{τ+1} = a ū^τ + drift(p^τ); p^{τ+2} = p^{τ+1} + Δt u^{τ+1}
         prev = p[starts].copy()
         for step in range(1, kmax + 1):
             vel_next = model.next_velocity(vel, prev)
             prev = pos
             pos = pos + model.dt * vel_next
-            vel = vel_next
+            vel = remember(model.velocity_memory, vel, vel_next)
             if a is not None:
                 gain = gain + a ** step
             if step in counts:
@@ -179,7 +181,8 @@ def prediction_covariance(model, k: int = 1) -> np.ndarray:
 
     From the origin (p^s, p^{s−1}) the velocity errors obey e_u^{τ+1} = a e_u^τ + w^τ and the
     position p^{τ+1} = p^τ + Δt u^τ, so the error of p̂^{s+k} is Δt Σ_{j<k} c_j w^{s−1+j} with
-    c_j = Σ_{m=0}^{k−1−j} a^m, and
+    c_j = Σ_{m=0}^{k−1−j} h_m, h_m = a^m (with a velocity memory κ < 1, h_m is the response
+    of e_u^{τ+m} = a e_ū^{τ+m−1}, e_ū ← (1 − κ) e_ū + κ e_u, to a unit w), and
 
         Cov = s_i Δt² Σ_{j<k} c_j² Q_i           (Q_i the agent's noise covariance, eq. 2)
 
@@ -191,8 +194,15 @@ def prediction_covariance(model, k: int = 1) -> np.ndarray:
     if k < 1:
         raise HerdInputError(f'--steps must be at least 1, got {k}')
     a = np.asarray(model.damping, dtype=float)                    # (N,)
-    powers = a[:, None] ** np.arange(k)[None, :]                  # a^m, m < k
-    c = np.cumsum(powers, axis=1)[:, ::-1]                        # c_j = Σ_{m≤k−1−j} a^m
+    kappa = model.velocity_memory
+    # h_m: response of u^{τ+m} to a unit w entering u^τ (a^m at κ = 1)
+    h = np.empty((len(a), k))
+    h[:, 0] = 1.0
+    mean = kappa * h[:, 0]                                        # its ū
+    for m in range(1, k):
+        h[:, m] = a * mean
+        mean = (1.0 - kappa) * mean + kappa * h[:, m]
+    c = np.cumsum(h, axis=1)[:, ::-1]                             # c_j = Σ_{m≤k−1−j} h_m
     scale = (model.dt ** 2) * (c ** 2).sum(axis=1)                # (N,)
     calibration = (model.meta or {}).get('prediction_scale')
     if calibration is not None:
@@ -285,8 +295,9 @@ def predict_ahead(model, positions: np.ndarray, k: int = 1) -> np.ndarray:
     """k-step-ahead predictions of every agent at every step of a run.
 
     ``positions`` (T, N, 2) in the model's agent order -> p̂ (T, N, 2): p̂[t] is predicted
-    from p[t−k] and p[t−k−1] by iterating the deterministic law (eq. 2),
-    u^{τ+1} = a u^τ + Σ f(p^τ) + g(p^τ), p^{τ+1} = p^τ + Δt u^τ; NaN for t < k + 1 and
+    from p[t−k] and p[t−k−1] (and, with a velocity memory κ < 1, the mean velocity ū up to
+    them) by iterating the deterministic law (eq. 2), u^{τ+1} = a ū^τ + Σ f(p^τ) + g(p^τ),
+    ū^{τ+1} = (1 − κ) ū^τ + κ u^{τ+1}, p^{τ+1} = p^τ + Δt u^τ; NaN for t < k + 1 and
     where the agent is missing at the origin. A neighbour missing at the origin drops out of
     the interaction sum (it stays missing over the k steps).
     """
@@ -298,9 +309,11 @@ def predict_ahead(model, positions: np.ndarray, k: int = 1) -> np.ndarray:
     if T < k + 2:
         return out
     prev, pos = p[:T - k - 1], p[1:T - k]           # p^{s−1}, p^s for s = 1 … T−k−1
-    vel = (pos - prev) / model.dt
+    _, mean_vel = model.memory_velocities(p)
+    mean_vel = mean_vel[:T - k - 1]                 # ū^{s−1} (= u^{s−1} at κ = 1)
     for _ in range(k):
-        vel_next = model.next_velocity(vel, prev)
-        prev, pos, vel = pos, pos + model.dt * vel_next, vel_next
+        vel_next = model.next_velocity(mean_vel, prev)
+        prev, pos = pos, pos + model.dt * vel_next
+        mean_vel = remember(model.velocity_memory, mean_vel, vel_next)
     out[k + 1:] = pos
     return out
