@@ -241,8 +241,9 @@ def node_parameters(setup: HerdSetup, bag, out_dir=None, rate=None,
             # for a usable law
             'model_source': 'topic', 'model_min_updates': int(max(30, np.ceil(300.0 / dt))),
             'noise': True, 'seed': 0,
-            # one command per model step: the robots run the learned discrete law exactly
-            'rate_hz': 1.0 / dt, 'safety_horizon_s': dt,
+            # four ticks per model step: the law is held over each herd-clock interval and
+            # stepped at its ticks (HerdClockHold), so the robots run the discrete law exactly
+            'rate_hz': 4.0 / dt, 'safety_horizon_s': dt,
             'max_speed': v_max, 'kinematics': 'holonomic', 'odom_timeout_s': 3.0 * dt,
             **fence_param}},
         'fleet_sim': {'ros__parameters': {

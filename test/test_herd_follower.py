@@ -130,3 +130,32 @@ def test_parameter_matrix_of_the_topic_rebuilds_the_model():
 def test_unknown_animal_in_assignment():
     with pytest.raises(HerdInputError, match='cow_z'):
         HerdFollower(two_animals(), ['cow_a', 'cow_z'])
+
+
+@pytest.mark.parametrize('phase', [0.0, 0.13, 0.31])
+def test_clock_hold_moves_the_discrete_law_on_the_herd_clock(phase):
+    """A controller ticking 3.3 × per model step at an arbitrary phase: the robot's
+    displacement over every herd-clock interval [kΔt, (k+1)Δt] is Δt·u^k of the discrete
+    law, so the velocities measured on that clock obey u^{k+1} = a u^k (robot integrated
+    here exactly: piecewise-constant commands)."""
+    from herd_ros.control.herd_follower import HerdClockHold
+    a, dt = 0.5, 2.0
+    model = HerdModel(['cow'], dt, {'cow': AgentLaw(a, [], [], [], FAR, [0.0], [0.0])})
+    follower = HerdFollower(model, ['cow'])
+    hold = HerdClockHold(dt)
+    h = dt / 3.3
+    t, p, issued = phase * dt, np.zeros((1, 2)), np.array([[1.0, 0.0]])
+    times, path = [t], [p.copy()]
+    while t < 12 * dt:
+        issued = hold.command(follower, issued, p, t)
+        t_next = t + h
+        p = p + h * issued
+        t = t_next
+        times.append(t)
+        path.append(p.copy())
+    times, path = np.array(times), np.array(path)[:, 0, 0]
+    ticks = np.arange(2, 11) * dt
+    at_ticks = np.interp(ticks, times, path)         # exact: the path is piecewise linear
+    v = np.diff(at_ticks) / dt
+    np.testing.assert_allclose(v[1:], a * v[:-1], rtol=1e-9)
+    assert v[0] > 0

@@ -27,7 +27,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
 from herd_ros.control import kinematics as kin
-from herd_ros.control.herd_follower import (HerdFollower, follower_for,
+from herd_ros.control.herd_follower import (HerdClockHold, HerdFollower, follower_for,
                                             model_from_parameter_matrix,
                                             shared_model_from_parameter_matrix)
 from herd_ros.control.safety import Fence, Obstacles, safe_velocity, stale_mask
@@ -316,8 +316,18 @@ class HerdModelPolicy:
 
     # -- the policy -----------------------------------------------------------------------
     def command(self, state: FleetObservation) -> np.ndarray:
+        """The law's command: held on the herd clock and stepped at its ticks when the
+        controller ticks faster than the model (:class:`HerdClockHold`), else advanced by
+        the elapsed fraction of model steps (:meth:`HerdFollower.advance`)."""
         if self.follower is None:
             return np.zeros_like(state.positions)
+        dt = self.follower.dt
+        if state.period < dt:
+            if getattr(self, 'hold', None) is None or self.hold.dt != dt:
+                self.hold = HerdClockHold(dt)
+            return self.hold.command(self.follower, state.last_command, state.positions,
+                                     state.time, state.active)
+        self.hold = None
         return self.follower.advance(state.last_command, state.positions, state.period,
                                      state.active)
 

@@ -20,6 +20,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose, PoseArray, Twist
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from rclpy.time import Time
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from herd_ros.control import kinematics as kin
@@ -139,6 +140,8 @@ class FleetSim(Node):
             self.create_subscription(Twist, f'/fleet/{r}/cmd_vel',
                                      lambda msg, k=k: self.on_cmd(k, msg), 10)
         self._last_step = None
+        self._next_grid = None
+        self._snapshots = []                             # (grid time, state, yaw rate)
         self._last_fix = -np.inf
         self._last_diag = -np.inf
         self.create_timer(1.0 / cfg.rate_hz, self.step)
@@ -158,14 +161,43 @@ class FleetSim(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_cmd(self, k: int, msg: Twist):
+        """A command takes effect when it arrives: the fleet is first advanced to now under
+        the commands it had (a command is not applied back to the last step, nor held
+        until the next one)."""
+        now = self.now_s()
+        self.integrate_to(now)
         self.command[k] = (msg.linear.x, msg.linear.y, msg.angular.z)
-        self.command_time[k] = self.now_s()
+        self.command_time[k] = now
 
     def step(self):
-        cfg = self.cfg
         now = self.now_s()
-        h = 0.0 if self._last_step is None else min(max(now - self._last_step, 0.0),
-                                                    5.0 / cfg.rate_hz)
+        self.integrate_to(now)
+        snapshots, self._snapshots = self._snapshots, []
+        for t, state, yaw_rate in snapshots:
+            self.publish(now, t, state, yaw_rate)
+
+    def integrate_to(self, now: float):
+        """Advance every robot to ``now`` under its current command, keeping its state at
+        every multiple of the step period 1/rate_hz on the way: the poses are published at
+        those grid times, stamped with them (with rate_hz = 2/Δt the grid holds every
+        herd-clock tick k·Δt, so a robot is measured at the ticks its animal is)."""
+        period = 1.0 / self.cfg.rate_hz
+        if self._last_step is None:
+            self._last_step = now
+            self._next_grid = np.ceil(now / period - 1e-9) * period
+        while self._next_grid <= now + 1e-9:
+            self._advance_span(self._next_grid)
+            self._snapshots.append((self._next_grid, self.state, self.yaw_rate.copy()))
+            self._next_grid += period
+        self._advance_span(now)
+
+    def _advance_span(self, now: float):
+        """Advance from the last integration time to ``now`` (zero command where stale: the
+        watchdog)."""
+        cfg = self.cfg
+        if now <= self._last_step:
+            return
+        h = min(now - self._last_step, 5.0 / cfg.rate_hz)
         self._last_step = now
         with np.errstate(invalid='ignore'):
             stale = ~(now - self.command_time <= cfg.cmd_timeout_s)
@@ -174,7 +206,6 @@ class FleetSim(Node):
         cmd = np.where(stale[:, None], 0.0, self.command)
         if h > 0:
             self.advance(cmd, stale, h)
-        self.publish(now)
 
     def advance(self, cmd, stale, h):
         cfg, old = self.cfg, self.state
@@ -203,9 +234,12 @@ class FleetSim(Node):
         self.collisions += overlap & ~self._overlap
         self._overlap = overlap
 
-    def publish(self, now: float):
-        cfg, s = self.cfg, self.state
-        stamp = self.get_clock().now().to_msg()
+    def publish(self, now: float, t: float, s, yaw_rate):
+        """The poses of state ``s`` at grid time ``t`` (stamped ``t``); fixes and
+        diagnostics on their own periods."""
+        cfg = self.cfg
+        stamp = Time(nanoseconds=int(round(t * 1e9)),
+                     clock_type=self.get_clock().clock_type).to_msg()
         body = s.body_velocity
         poses = PoseArray()
         poses.header.stamp = stamp
@@ -224,21 +258,21 @@ class FleetSim(Node):
             odom.pose.pose = pose
             odom.twist.twist.linear.x = float(body[k, 0])
             odom.twist.twist.linear.y = float(body[k, 1])
-            odom.twist.twist.angular.z = float(self.yaw_rate[k])
+            odom.twist.twist.angular.z = float(yaw_rate[k])
             self.odom_pubs[k].publish(odom)
         self.poses_pub.publish(poses)
         if now - self._last_fix >= 1.0 / cfg.fix_rate_hz - 1e-9:
             self._last_fix = now
-            self.publish_fixes(stamp)
+            self.publish_fixes(stamp, s)
         if now - self._last_diag >= cfg.diagnostics_period_s - 1e-9:
             self._last_diag = now
             self.publish_diagnostics(now)
 
-    def publish_fixes(self, stamp):
+    def publish_fixes(self, stamp, state):
         cfg = self.cfg
-        noise = self.rng.normal(0.0, cfg.gps_noise_std, size=self.state.positions.shape) \
+        noise = self.rng.normal(0.0, cfg.gps_noise_std, size=state.positions.shape) \
             if cfg.gps_noise_std > 0 else 0.0
-        e, n = (self.state.positions + noise).T
+        e, n = (state.positions + noise).T
         lat, lon, alt = enu_to_geodetic(e, n, np.zeros_like(e), *cfg.datum)
         var = cfg.gps_noise_std ** 2
         for k, robot in enumerate(cfg.robots):
