@@ -10,6 +10,7 @@ velocity and stay-put; the robots must stay inside the fence the demo derived.
 import json
 import subprocess
 import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -81,11 +82,16 @@ def demo_run(request, tmp_path_factory):
         import sys
         exe = str(os.path.join(os.path.dirname(sys.executable), 'herd-ros'))
     t0 = time.monotonic()
+    # a relative --out, as `make demo` gives: the nodes must write there, not under
+    # $ROS_HOME (where a second run would resume the first one's estimator checkpoint)
     proc = subprocess.run([exe, 'demo', '--bag', str(REPO / 'bags' / request.param),
-                           '--out', str(out)], env=env, capture_output=True, text=True,
-                          timeout=900)
+                           '--out', out.name], env=env, capture_output=True, text=True,
+                          timeout=900, cwd=out.parent)
     wall = time.monotonic() - t0
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert (out / 'learned_model.yaml').is_file()
+    assert not (Path(env['ROS_HOME']) / 'herd_ros' / out.name).exists()
+    assert 'Traceback' not in proc.stdout + proc.stderr, proc.stderr[-3000:]
     print(f'{request.param}: demo took {wall:.0f} s')
     return request.param, out, proc.stdout, wall
 

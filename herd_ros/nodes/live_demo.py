@@ -103,7 +103,10 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     from herd_ros.report.demo_report import write_demo_report
     from herd_ros.trajectory import HerdTrajectory
 
-    out = Path(out_dir)
+    # absolute: the nodes resolve a relative model/checkpoint path under their data
+    # directory ($ROS_HOME/herd_ros), not here (a second `make demo` then resumed the first
+    # run's checkpoint, its clock ahead of the replay, and learned nothing)
+    out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
     info = bag_info(bag)
     if herd_file is not None:
@@ -134,7 +137,7 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
         f'parameters: {params_file}; herd file: {out / "herd.yaml"}')
 
     rclpy.init(args=['--ros-args', '--params-file', str(params_file)])
-    nodes = []
+    nodes, spinner = [], None
     # One single-threaded executor for the whole graph. The graph runs in data time, so
     # every topic's messages must be handled in order; rclpy's MultiThreadedExecutor does not
     # keep a subscription's messages in order, and a second executor thread starves the data
@@ -184,6 +187,9 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
             if hook is not None:
                 hook()
         executor.shutdown(timeout_sec=2.0)
+        if spinner is not None:
+            # destroying the nodes under a spin that has not returned yet raises in it
+            spinner.join(timeout=10.0)
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown()
