@@ -14,9 +14,11 @@ itself); they use that animal's mean θ1, θ2 over its neighbours, so they still
 herd's typical spacing instead of ignoring each other.
 
 **Rate vs model step.** The law is a discrete map with step Δt (``model.dt``); the
-controller runs at a period h = 1/rate_hz that need not equal Δt. With α = h/Δt the law is
-advanced by the fraction α of a model step per tick (explicit Euler of the same map in
-model time, which is the law itself at α = 1)::
+controller runs at a period h = 1/rate_hz that need not equal Δt. The controller node holds
+the law on the herd clock when h < Δt (:class:`HerdClockHold`: stepped at the ticks k·Δt,
+which is how the animals' velocities were measured). :meth:`HerdFollower.advance` itself
+advances the law by the fraction α = h/Δt of a model step (explicit Euler of the same map
+in model time, which is the law itself at α = 1; the node uses it for α ≥ 1)::
 
     u ← u + α [(a − 1) u + Σ_j f(p) + g(p)] + √α L ξ,   L Lᵀ = Q,  ξ ~ N(0, I)
 
