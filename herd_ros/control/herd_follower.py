@@ -86,7 +86,8 @@ def robot_herd_model(model: HerdModel, assignment: list[str],
                                field_u=law.field_u, field_v=law.field_v,
                                noise_cov=law.noise_cov)
     return HerdModel(agents=robots, dt=model.dt, laws=laws, frame_id=model.frame_id,
-                     datum=model.datum, meta={'velocity_memory': model.velocity_memory})
+                     datum=model.datum,
+                     meta={'velocity_memory': model.velocity_memory[np.asarray(index)]})
 
 
 class HerdFollower:
@@ -142,10 +143,11 @@ class HerdFollower:
             return u
         steps = int(np.ceil(alpha - 1e-12))
         beta = alpha / steps
-        kappa = self.model.velocity_memory
+        kappa = self.model.velocity_memory                            # (R,)
+        plain = bool((kappa == 1.0).all())
         mean = self._mean_velocity(u, kappa)
         for _ in range(steps):
-            damped = ((self.damping[:, None] - 1.0) * u if kappa == 1.0
+            damped = ((self.damping[:, None] - 1.0) * u if plain
                       else self.damping[:, None] * mean - u)         # a ū − u
             change = beta * (damped + self.drift(p, active))
             if self.noise:
@@ -153,7 +155,8 @@ class HerdFollower:
                 change += np.sqrt(beta) * np.einsum('kij,kj->ki', self.noise_factor, xi)
             p = p + beta * self.dt * u
             u = u + change
-            mean = u if kappa == 1.0 else mean + beta * kappa * (u - mean)
+            mean = u if plain else np.where((kappa == 1.0)[:, None], u,
+                                            mean + beta * kappa[:, None] * (u - mean))
         self._mean = mean
         return u
 
@@ -162,9 +165,9 @@ class HerdFollower:
         one carried from the last tick, restarted at u where there is none (first tick, a
         robot that was inactive); u itself at κ = 1."""
         mean = getattr(self, '_mean', None)
-        if kappa == 1.0 or mean is None or mean.shape != u.shape:
+        if (kappa == 1.0).all() or mean is None or mean.shape != u.shape:
             return u.copy()
-        return np.where(np.isfinite(mean), mean, u)
+        return np.where(np.isfinite(mean) & (kappa != 1.0)[:, None], mean, u)
 
 
 class HerdClockHold:
@@ -283,7 +286,8 @@ def robot_shared_model(model, assignment: list[str], robots: list[str] | None = 
                           field_u=[model.field_u[i] for i in idx],
                           field_v=[model.field_v[i] for i in idx],
                           noise_cov=model.noise_cov[idx], frame_id=model.frame_id,
-                          datum=model.datum, meta={'velocity_memory': model.velocity_memory})
+                          datum=model.datum,
+                          meta={'velocity_memory': model.velocity_memory[np.asarray(idx)]})
 
 
 class SharedLawFollower(HerdFollower):

@@ -220,9 +220,9 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
             theta_se=[o[1] for o in out], frame_id=frame_id, datum=datum)
     else:
         model = HerdModel(agents=agents, dt=dt, laws=laws, frame_id=frame_id, datum=datum)
-    memory = float(getattr(structure, 'memory', 1.0))
-    if memory != 1.0:
-        model.meta['velocity_memory'] = memory
+    memory = np.atleast_1d(np.asarray(getattr(structure, 'memory', 1.0), dtype=float))
+    if (memory != 1.0).any():
+        model.meta['velocity_memory'] = float(memory[0]) if len(memory) == 1 else memory
     model.meta['prediction_scale'] = calibrate_prediction_scale(model, positions)
     return HerdFit(model=model, fits=fits,
                    grid=field_grid if field_grid is not None else FieldGrid(1, 1, tuple(bounds)),

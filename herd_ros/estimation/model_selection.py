@@ -88,7 +88,7 @@ class Structure:
     ridge: float
     own: tuple = ()
     own_profile: DistanceProfile | None = None
-    memory: float = 1.0         # velocity memory κ (1: the paper's u^τ)
+    memory: float | tuple = 1.0  # velocity memory κ (1: the paper's u^τ), or one per agent
 
     @property
     def terms(self) -> str:
@@ -98,7 +98,13 @@ class Structure:
     def label(self) -> str:
         g = f' {self.grid[0]}x{self.grid[1]}' if self.grid is not None else ''
         o = f' own profile {",".join(self.own)}' if self.own else ''
-        m = f' memory {self.memory:g}' if self.memory != 1.0 else ''
+        m = ''
+        if isinstance(self.memory, tuple):
+            values, counts = np.unique(self.memory, return_counts=True)
+            m = ' memory per agent (' + ', '.join(f'{v:g}×{c}' for v, c in
+                                                   zip(values[::-1], counts[::-1])) + ')'
+        elif self.memory != 1.0:
+            m = f' memory {self.memory:g}'
         return f'{self.terms}{g}{o}{m} λ={self.ridge:g}'
 
 
@@ -126,7 +132,8 @@ class Selection:
                       f'one-step error, one-standard-error rule',
             'terms': c.terms, 'grid': list(c.grid) if c.grid else [],
             'ridge': float(c.ridge), 'interaction_law': self.law if c.interactions else '',
-            'velocity_memory': float(c.memory),
+            'velocity_memory': (list(c.memory) if isinstance(c.memory, tuple)
+                                else float(c.memory)),
             'own_profile_agents': list(self.own_agents) if c.interactions else [],
             'field_bounds': [float(b) for b in self.bounds],
             'cv_rms': {'selected': float(self._row(c)['rms']),
@@ -480,9 +487,10 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
                                          prof if inter and names else None, memory))
         return out
 
-    def score(per_agent, group, pass_designs):
-        """Add every candidate's held-out SSE per block (and its parameter count)."""
-        for bases, blocks in per_agent:
+    def score(per_agent, group, pass_designs, by_agent=None):
+        """Add every candidate's held-out SSE per block (and its parameter count); with
+        ``by_agent`` (a dict), also each agent's, (N, blocks) per candidate."""
+        for i, (bases, blocks) in enumerate(per_agent):
             for g in pass_designs:
                 stats = blocks[g]
                 live = [k for k, st in enumerate(stats) if st is not None]
@@ -505,7 +513,10 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
                         ct = (c_tot - c_b)[cols]
                         theta = _solve(Gt, ct, s.ridge)
                         Gb = G_b[np.ix_(cols, cols)]
-                        sse[s][k] += max(s_b - 2 * theta @ c_b[cols] + theta @ Gb @ theta, 0.0)
+                        e = max(s_b - 2 * theta @ c_b[cols] + theta @ Gb @ theta, 0.0)
+                        sse[s][k] += e
+                        if by_agent is not None:
+                            by_agent.setdefault(s, np.zeros((n, n_blocks)))[i, k] += e
 
     # first pass: every term, with the given own profiles (or none)
     names0 = tuple(agents[k] for k in own)
@@ -558,15 +569,29 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
     if memories:
         own_k = [agents.index(a) for a in chosen.own]
         design = [chosen.grid]
+        kappas = [memory] + memories
         stats3 = _block_statistics(runs_positions, agents, dt, law, profile, design, bounds,
                                    min_visits, folds, own_k, chosen.own_profile,
-                                   progress=progress, memory=memory, memories=memories)
-        for kappa in memories:
+                                   progress=progress, memory=memory, memories=kappas)
+        by_agent = {}
+        variants = []
+        for kappa in kappas:
             s_k = replace(chosen, memory=kappa)
             sse[s_k] = np.zeros(n_blocks)
-            score(stats3[kappa], [s_k], design)
-            n_params[s_k] = n_params.get(s_k, 0) + 1.0 / n
-            candidates.append(s_k)
+            n_params.pop(s_k, None)
+            score(stats3[kappa], [s_k], design, by_agent)
+            variants.append(s_k)
+            if kappa != memory:
+                n_params[s_k] += 1.0 / n
+                candidates.append(s_k)
+        # and one κ per agent: each agent's own best by its CV error (one parameter each)
+        own_err = np.stack([by_agent[v].sum(1) for v in variants])       # (κ, N)
+        pick = np.argmin(own_err, axis=0)
+        if len(set(pick)) > 1:
+            s_pa = replace(chosen, memory=tuple(float(kappas[j]) for j in pick))
+            sse[s_pa] = sum(by_agent[variants[j]][i] for i, j in enumerate(pick))
+            n_params[s_pa] = n_params[chosen] + 1.0
+            candidates.append(s_pa)
         table, chosen = _one_standard_error(candidates, sse, n_params, count, dt)
     total = count[used].sum()
     sel = Selection(law=law, profile=profile, bounds=tuple(float(b) for b in bounds),
@@ -618,7 +643,8 @@ def structured_regression(runs_positions, i: int, agents: list[str], dt: float,
     """The regression of agent i for ``structure`` over whole runs (for the final fit by
     :func:`~herd_ros.estimation.batch_ls.fit_agent`). A distinguished agent's block with
     itself (zero columns) is left out: ``fit_structure`` puts zeros back."""
-    parts = [agent_samples(p, i, dt, law, profile, own, own_profile, structure.memory)
+    memory = structure.memory[i] if isinstance(structure.memory, tuple) else structure.memory
+    parts = [agent_samples(p, i, dt, law, profile, own, own_profile, memory)
              for p in runs_positions]
     parts = [s for s in parts if s is not None]
     if not parts:

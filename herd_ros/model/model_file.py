@@ -31,7 +31,7 @@ import yaml
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import KIND, AgentLaw, HerdModel
 from herd_ros.model.rbf_field import RbfBasis
-from herd_ros.model.velocity_memory import check_memory
+from herd_ros.model.velocity_memory import check_memories
 
 ROS_TOKEN = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 AGENT_KEYS = ('damping', 'neighbors', 'theta1', 'theta2', 'rbf_centers_x', 'rbf_centers_y',
@@ -102,16 +102,18 @@ def add_model_meta(body: dict, model) -> None:
       the 90 % prediction ellipse of
       :func:`~herd_ros.simulation.prediction.prediction_covariance` hold 90 % of the
       training residuals (written by ``herd-ros fit``; 1 if absent);
-    * ``velocity_memory`` κ (:mod:`herd_ros.model.velocity_memory`; written when κ < 1,
-      absent = 1, the paper's model).
+    * ``velocity_memory`` κ (:mod:`herd_ros.model.velocity_memory`): one number for the
+      herd or one per agent (agents order); written when some κ < 1, absent = 1, the
+      paper's model.
     """
     meta = model.meta or {}
     scale = meta.get('prediction_scale')
     if scale is not None:
         body['prediction_scale'] = float_list(scale)
-    memory = float(meta.get('velocity_memory', 1.0))
-    if memory != 1.0:
-        body['velocity_memory'] = memory
+    memory = check_memories(meta.get('velocity_memory', 1.0), len(model.agents))
+    if (memory != 1.0).any():
+        same = (memory == memory[0]).all()
+        body['velocity_memory'] = float(memory[0]) if same else float_list(memory)
 
 
 def read_model_meta(body: dict, n_agents: int, source: str) -> dict:
@@ -119,7 +121,7 @@ def read_model_meta(body: dict, n_agents: int, source: str) -> dict:
     meta = {}
     if 'velocity_memory' in body:
         try:
-            meta['velocity_memory'] = check_memory(body['velocity_memory'])
+            meta['velocity_memory'] = check_memories(body['velocity_memory'], n_agents)
         except HerdInputError as err:
             raise HerdInputError(f'{source}: model.{err}') from None
     if 'prediction_scale' not in body:
@@ -229,8 +231,9 @@ def selection_entry(selection: dict) -> dict:
           grid: [4.0, 4.0]                    # field grid (absent without a field; the
                                               # model then has one centre of weight 0)
           ridge: 0.0
-          velocity_memory: 0.35               # κ chosen (absent at 1; the model's own
-                                              # velocity_memory key is what is used)
+          velocity_memory: 0.35               # κ chosen, or one per agent (absent at 1;
+                                              # the model's own velocity_memory key is
+                                              # what is used)
           loss: l2                            # or robust (--loss robust)
           cv_rms: 0.0707                      # one-step RMS (m) of the chosen structure
           cv_rms_constant_velocity: 0.0720
@@ -243,8 +246,9 @@ def selection_entry(selection: dict) -> dict:
         out['own_profile_agents'] = [str(a) for a in selection['own_profile_agents']]
     if selection['grid']:
         out['grid'] = [float(g) for g in selection['grid']]
-    if float(selection.get('velocity_memory', 1.0)) != 1.0:
-        out['velocity_memory'] = float(selection['velocity_memory'])
+    memory = np.atleast_1d(np.asarray(selection.get('velocity_memory', 1.0), dtype=float))
+    if (memory != 1.0).any():
+        out['velocity_memory'] = float(memory[0]) if len(memory) == 1 else float_list(memory)
     out.update({'ridge': float(selection['ridge']), 'loss': selection.get('loss', 'l2'),
                 'cv_rms': float(cv['selected']),
                 'cv_rms_constant_velocity': float(cv['constant_velocity']),

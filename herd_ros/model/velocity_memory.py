@@ -42,10 +42,22 @@ def check_memory(memory) -> float:
     return k
 
 
-def memory_velocities(velocity: np.ndarray, memory: float) -> np.ndarray:
+def check_memories(memory, n_agents: int) -> np.ndarray:
+    """κ per agent (N,) from one number or one per agent, each in (0, 1]; one clear error
+    otherwise."""
+    values = np.atleast_1d(np.asarray(memory, dtype=object)).ravel()
+    if len(values) not in (1, n_agents):
+        raise HerdInputError(f'velocity memory needs one number or one per agent ({n_agents}), '
+                             f'got {len(values)}')
+    k = np.array([check_memory(v) for v in values], dtype=float)
+    return np.full(n_agents, k[0]) if len(k) == 1 else k
+
+
+def memory_velocities(velocity: np.ndarray, memory) -> np.ndarray:
     """ū^τ = (1 − κ) ū^{τ−1} + κ u^τ: the velocity the damping acts on, (T, N, 2) -> (T, N, 2).
 
-    κ = ``memory`` ∈ (0, 1]. κ = 1 is the paper's model (ū = u, the same array back). With
+    κ = ``memory`` ∈ (0, 1], one for the herd or one per agent (N,). κ = 1 is the paper's
+    model (ū = u, the same array back). With
     κ < 1 the damping term a_i ū_i of eq. 2 acts on an exponentially weighted mean of the
     agent's recent velocities (a first-order low-pass, time constant Δt(1 − κ)/κ): its
     heading persists over more than one step, and a step of jitter does not reverse it.
@@ -56,18 +68,21 @@ def memory_velocities(velocity: np.ndarray, memory: float) -> np.ndarray:
     (NaN), so nothing is carried across a gap.
     """
     u = np.asarray(velocity, dtype=float)
-    k = check_memory(memory)
-    if k == 1.0 or u.shape[0] == 0:
+    flat = u.reshape(u.shape[0], -1, u.shape[-1]) if u.ndim >= 2 else u
+    k = check_memories(memory, flat.shape[1] if u.ndim >= 3 else 1)
+    if (k == 1.0).all() or u.shape[0] == 0:
         return u
-    flat = np.ascontiguousarray(u.reshape(u.shape[0], -1, u.shape[-1]))
-    return _ewma_restart(flat, k).reshape(u.shape)
+    if len(k) != flat.shape[1]:
+        raise HerdInputError(f'{len(k)} velocity memories for {flat.shape[1]} agents')
+    return _ewma_restart(np.ascontiguousarray(flat), k).reshape(u.shape)
 
 
 @njit(cache=True)
-def _ewma_restart(u, k):  # pragma: no cover - compiled
+def _ewma_restart(u, kappa):  # pragma: no cover - compiled
     T, N, D = u.shape
     out = np.empty_like(u)
     for i in range(N):
+        k = kappa[i]
         fresh = True
         for t in range(T):
             gap = False
@@ -88,11 +103,14 @@ def _ewma_restart(u, k):  # pragma: no cover - compiled
     return out
 
 
-def remember(memory: float, mean_velocity: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-    """One step of ū ← (1 − κ) ū + κ u (u itself at κ = 1)."""
-    if memory == 1.0:
+def remember(memory, mean_velocity: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """One step of ū ← (1 − κ) ū + κ u for arrays (..., N, 2), κ one number or (N,)
+    (u itself where κ = 1)."""
+    k = np.asarray(memory, dtype=float)
+    if (k == 1.0).all():
         return velocity
-    return (1.0 - memory) * mean_velocity + memory * velocity
+    k = k[:, None] if k.ndim == 1 else k
+    return (1.0 - k) * mean_velocity + k * velocity
 
 
 class VelocityMemory:
@@ -102,8 +120,10 @@ class VelocityMemory:
     ``velocity_memory``; absent = 1, the paper's model)."""
 
     @property
-    def velocity_memory(self) -> float:
-        return float((self.meta or {}).get('velocity_memory', 1.0))
+    def velocity_memory(self) -> np.ndarray:
+        """κ of every agent (N,), in agents order (ones without a memory)."""
+        return check_memories((self.meta or {}).get('velocity_memory', 1.0),
+                              len(self.agents))
 
     def memory_velocities(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """u^τ = (p^{τ+1} − p^τ)/Δt and ū^τ of a run: (T, N, 2) -> two (T−1, N, 2)."""
