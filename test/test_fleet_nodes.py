@@ -129,6 +129,33 @@ def test_stale_commands_stop_unicycles_within_cmd_timeout(graph):
     assert max(odom_speed(m) for m in after) == 0.0
 
 
+def test_a_command_takes_effect_on_arrival_and_poses_sit_on_the_period_grid(graph):
+    """fleet_sim publishes the poses at exact multiples of its period (stamped with them),
+    and a command moves the robot from the moment it arrives: the pose interval in which it
+    arrives shows a partial displacement, every later one exactly v·h (no acceleration
+    limit in reach here)."""
+    g, ear = graph
+    h, v = 0.25, 0.4
+    odom = ear.record(Odometry, '/fleet/r1/odom')
+    g.start('fleet_sim', '-p', 'robots:=[r1]', '-p', 'initial_poses:=[0.0, 0.0, 0.0]',
+            '-p', 'kinematics:=holonomic', '-p', f'rate_hz:={1 / h}', '-p', 'max_accel:=1000.0',
+            '-p', 'max_speed:=2.0', '-p', 'cmd_timeout_s:=100.0')
+    pub = ear.node.create_publisher(Twist, '/fleet/r1/cmd_vel', 10)
+    assert ear.spin(20.0, until=lambda: len(odom) >= 4 and pub.get_subscription_count() > 0)
+    msg = Twist()
+    msg.linear.x = v
+    pub.publish(msg)
+    assert ear.spin(10.0, until=lambda: odom and odom_xy(odom[-1][1])[0] > 6 * v * h)
+    t = np.array([stamp(m) for _, m in odom])
+    x = np.array([odom_xy(m)[0] for _, m in odom])
+    np.testing.assert_allclose(np.round(t / h) * h, t, atol=1e-6)    # on the grid
+    np.testing.assert_allclose(np.diff(t), h, atol=1e-6)             # every grid time once
+    dx = np.diff(x)
+    first = int(np.argmax(dx > 0))
+    assert 0 < dx[first] < v * h - 1e-6, dx[first]                   # from its arrival on
+    np.testing.assert_allclose(dx[first + 1:], v * h, rtol=1e-9)
+
+
 def test_stale_odometry_gives_zero_commands_within_one_period(graph):
     g, ear = graph
     cmds = ear.record(Twist, '/fleet/r1/cmd_vel')
