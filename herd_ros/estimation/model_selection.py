@@ -576,6 +576,8 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
         by_agent = {}
         variants = []
         for kappa in kappas:
+            # the κ = memory variant is ``chosen`` itself: scored again for its per-agent
+            # errors (the same SSE and parameter count as in its own pass)
             s_k = replace(chosen, memory=kappa)
             sse[s_k] = np.zeros(n_blocks)
             n_params.pop(s_k, None)

@@ -74,6 +74,7 @@ def k_step_rms(model: HerdModel, runs: list[HerdTrajectory], ks=(1, 5, 10, 30),
     sums = {m: {k: 0.0 for k in ks} for m in methods}
     counts = {k: 0 for k in ks}
     a = None if damping is None else np.asarray(damping, dtype=float)[:, None]
+    kappa = model.velocity_memory
     for r in runs:
         p = _aligned(model, r)
         T = p.shape[0]
@@ -93,7 +94,7 @@ def k_step_rms(model: HerdModel, runs: list[HerdTrajectory], ks=(1, 5, 10, 30),
             vel_next = model.next_velocity(vel, prev)
             prev = pos
             pos = pos + model.dt * vel_next
-            vel = remember(model.velocity_memory, vel, vel_next)
+            vel = remember(kappa, vel, vel_next)
             if a is not None:
                 gain = gain + a ** step
             if step in counts:
@@ -311,9 +312,10 @@ def predict_ahead(model, positions: np.ndarray, k: int = 1) -> np.ndarray:
     prev, pos = p[:T - k - 1], p[1:T - k]           # p^{s−1}, p^s for s = 1 … T−k−1
     _, mean_vel = model.memory_velocities(p)
     mean_vel = mean_vel[:T - k - 1]                 # ū^{s−1} (= u^{s−1} at κ = 1)
+    kappa = model.velocity_memory
     for _ in range(k):
         vel_next = model.next_velocity(mean_vel, prev)
         prev, pos = pos, pos + model.dt * vel_next
-        mean_vel = remember(model.velocity_memory, mean_vel, vel_next)
+        mean_vel = remember(kappa, mean_vel, vel_next)
     out[k + 1:] = pos
     return out
