@@ -190,3 +190,14 @@ def test_one_memory_per_agent_is_selected_recovered_and_saved(tmp_path):
     fit = fit_structure([run], sel.chosen)
     path = save_model(fit.model, tmp_path / 'm.yaml')
     np.testing.assert_array_equal(load_model(path).velocity_memory, [0.35, 1.0, 0.35, 1.0])
+
+
+def test_a_forced_memory_leaves_the_naive_baselines_alone():
+    """Constant velocity and stay-put do not depend on the model's memory."""
+    _, run = _truth_run(0.35, steps=3000)
+    auto = select_model([run.positions], list(run.agents), run.dt, grids=[])
+    forced = select_model([run.positions], list(run.agents), run.dt, grids=[], memory=0.35,
+                          memories=())
+    assert forced.chosen.memory == 0.35
+    for name, value in auto.baselines.items():
+        assert forced.baselines[name] == pytest.approx(value, rel=1e-12), name

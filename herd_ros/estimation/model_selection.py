@@ -523,16 +523,23 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
     candidates = candidates_of(names0, own_profile, terms, field_grid_list)
     if not candidates:
         raise HerdInputError('no candidate model to select from (check --terms/--grid)')
-    base_stats = _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds,
-                                   min_visits, folds, own, own_profile, progress=progress,
-                                   memory=memory)
+    # the baselines need the plain velocity u in the damping column (not ū of a forced κ)
+    if memory == 1.0:
+        base_stats = plain_stats = _block_statistics(
+            runs_positions, agents, dt, law, profile, designs, bounds, min_visits, folds, own,
+            own_profile, progress=progress)
+    else:
+        both = _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds,
+                                 min_visits, folds, own, own_profile, progress=progress,
+                                 memories=[1.0, memory])
+        base_stats, plain_stats = both[memory], both[1.0]
     n_blocks = len(base_stats[0][1][None])
     # per block: SSE (summed over agents) and sample count, per candidate and baselines
     sse = {s: np.zeros(n_blocks) for s in candidates}
     base = {'constant_velocity': np.zeros(n_blocks), 'stay_put': np.zeros(n_blocks)}
     count = np.zeros(n_blocks)
     n_params = {}
-    for bases, blocks in base_stats:
+    for bases, blocks in plain_stats:
         for k, st in enumerate(blocks[None]):
             if st is not None:
                 G_b, c_b, s_b, m_b = st
