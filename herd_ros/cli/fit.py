@@ -58,6 +58,15 @@ def add_arguments(p):
                    help='offline smoothing of GPS data')
     add_filter_arguments(p)
     p.add_argument('--report', metavar='DIR', help='write figures and summary.json here')
+    p.add_argument('--field', choices=('fitted', 'space-use'), default='fitted',
+                   help='environment field: fitted = least squares with the rest of the law '
+                        '(kept only if cross-validation does); space-use = the Langevin field '
+                        'that makes each agent spend its time where the animal did (for '
+                        'simulations and robots that must stay in the range over hours)')
+    p.add_argument('--noise', choices=('gaussian', 'regimes'), default='gaussian',
+                   help='noise of the law: gaussian = N(0, Q_i) (the paper); regimes = '
+                        'stop-and-go, 1-3 noise levels switching as a Markov chain, chosen by '
+                        'BIC (for animals that rest and move in bursts)')
     p.add_argument('--seed', type=int, default=0, help='seed of the validation simulation')
     p.add_argument('--online', action='store_true',
                    help='recursive least squares over the whole file (the estimator node\'s '
@@ -124,6 +133,8 @@ def run(args) -> int:
         raise HerdInputError('--interact-with-own-profile needs the shared law (the pairwise '
                              'law already gives every pair its own parameters)')
     memory, memories = _memories(args)
+    if args.online and (args.field != 'fitted' or args.noise != 'gaussian'):
+        raise HerdInputError('--field space-use and --noise regimes are for the batch fit')
     if args.online and args.velocity_memory != 'auto':
         raise HerdInputError('--velocity-memory is for the batch fit; the online estimator '
                              'damps the last velocity (κ = 1)')
@@ -159,6 +170,7 @@ def run(args) -> int:
     bar.close()
     chosen = selection.as_dict()
     chosen['loss'] = args.loss
+    fit = _long_run_terms(fit, train, args, chosen)
     if hasattr(fit.model, 'laws'):
         save_model(fit.model, args.output, selection=selection_entry(chosen))
     else:
@@ -180,6 +192,47 @@ def run(args) -> int:
         (Path(args.report) / 'summary.json').write_text(json.dumps(public, indent=1))
         print(f'report: {len(paths)} figures and summary.json in {args.report}')
     return 0
+
+
+def _long_run_terms(fit, train, args, chosen):
+    """``--field space-use`` and ``--noise regimes`` on the fitted model (recorded in
+    ``chosen``)."""
+    import dataclasses
+
+    model = fit.model
+    positions = [aligned_positions(r, model.agents) for r in train]
+    if args.field == 'space-use':
+        from herd_ros.model.space_use_field import with_space_use_field
+        bar = progress(total=model.n_agents, desc='space-use field', unit='agent')
+        model = with_space_use_field(model, np.concatenate(positions),
+                                     progress=lambda n: bar.update(n))
+        bar.close()
+        chosen['field'] = 'space-use'
+        h = model.meta['space_use_bandwidth']
+        print(f'space-use field: kernel bandwidth {h.min():.2f}-{h.max():.2f} m')
+    if args.noise == 'regimes':
+        from herd_ros.model.noise_regimes import with_noise_regimes
+        print('noise regimes: fitting 1-3 regimes per agent (Baum-Welch) ...', flush=True)
+        model, regimes = with_noise_regimes(model, positions)
+        chosen['noise_regimes'] = regimes['n_regimes']
+        print(f'noise regimes: BIC keeps {regimes["n_regimes"]} (' + ', '.join(
+            f'K={k}: {v:.0f}' for k, v in sorted(regimes['bic'].items())) + ')')
+    return dataclasses.replace(fit, model=model) if model is not fit.model else fit
+
+
+def _print_statistics(statistics: dict, agents) -> None:
+    """The law simulated freely over the training span against the training data (herd
+    means of the per-agent statistics, Schwager et al. 2007 Fig. 6)."""
+    from herd_ros.simulation.statistics import STATISTICS
+    real, sim = statistics['real'], statistics['simulated']
+    cells = []
+    for k in STATISTICS:
+        want = float(np.nanmean([real[a][k] for a in agents]))
+        got = float(np.nanmean([sim[a][k] for a in agents]))
+        rel = 100.0 * (got / want - 1.0) if want else float('nan')
+        cells.append(f'{k.replace("_", " ")} {got:.3g} vs {want:.3g} ({rel:+.0f} %)')
+    print('simulated herd vs training data (herd means; the law run freely from the first '
+          'step):\n  ' + '; '.join(cells))
 
 
 def _print_selection(selection, dt, rows: int = 8):
@@ -224,6 +277,7 @@ def _print_summary(fit, summary, args):
     print(f'{"herd":>12} {"":16} {one["model"]["herd"]:8.3f} '
           f'{one["constant_velocity"]["herd"]:8.3f} {one["stay_put"]["herd"]:8.3f} '
           f'{one["damping_only"]["herd"]:8.3f}')
+    _print_statistics(summary['statistics'], fit.model.agents)
     weak = [k for k, c in summary['interaction'].items() if not c['identifiable']]
     if weak:
         print(f'note: {len(weak)} of {len(summary["interaction"])} pairwise interactions are '

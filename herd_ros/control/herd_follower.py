@@ -38,7 +38,7 @@ import numpy as np
 
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import AgentLaw, HerdModel, pairwise_geometry
-from herd_ros.simulation.herd_simulator import noise_factors
+from herd_ros.model.noise_regimes import noise_for, subset_regimes
 
 #: Distances below this (m) are treated as this in the repulsion θ2/d (co-located robots).
 MIN_DISTANCE = 1e-3
@@ -57,6 +57,12 @@ def _robot_assignment(model, assignment, robots=None) -> tuple[list[str], list[i
         raise HerdInputError(f'assignment names animal(s) {", ".join(unknown)} that the model '
                              f'does not have (model agents: {", ".join(model.agents)})')
     return robots, [model.agents.index(a) for a in assignment]
+
+
+def _robot_meta(model, index) -> dict:
+    """The robots' model meta: each robot its animal's velocity memory and noise regimes."""
+    return {'velocity_memory': model.velocity_memory[np.asarray(index)],
+            **subset_regimes(model.meta, index)}
 
 
 def robot_herd_model(model: HerdModel, assignment: list[str],
@@ -87,7 +93,7 @@ def robot_herd_model(model: HerdModel, assignment: list[str],
                                noise_cov=law.noise_cov)
     return HerdModel(agents=robots, dt=model.dt, laws=laws, frame_id=model.frame_id,
                      datum=model.datum,
-                     meta={'velocity_memory': model.velocity_memory[np.asarray(index)]})
+                     meta=_robot_meta(model, index))
 
 
 class HerdFollower:
@@ -96,7 +102,8 @@ class HerdFollower:
     Attributes:
         model: the robot :class:`HerdModel` (robots as agents), see :func:`robot_herd_model`.
         damping (R,), theta1 (R, R), theta2 (R, R): the packed law parameters.
-        noise_factor (R, 2, 2): L_k with L_k L_kᵀ = Q_A(k).
+        noise_source: draws w, N(0, Q_A(k)) or A(k)'s noise regimes
+            (:func:`~herd_ros.model.noise_regimes.noise_for`).
         noise: whether w is drawn.
     """
 
@@ -109,8 +116,7 @@ class HerdFollower:
         self.theta1 = self.model.theta1
         self.theta2 = self.model.theta2
         self.noise = bool(noise)
-        self.noise_factor = noise_factors(self.model.noise_cov)
-        self.rng = np.random.default_rng(seed)
+        self.noise_source = noise_for(self.model, seed)
 
     def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Σ_{j active, j≠k} f_kj(p_k, p_j) + g_k(p_k) for every robot: (R, 2) -> (R, 2).
@@ -151,8 +157,7 @@ class HerdFollower:
                       else self.damping[:, None] * mean - u)         # a ū − u
             change = beta * (damped + self.drift(p, active))
             if self.noise:
-                xi = self.rng.standard_normal(u.shape)
-                change += np.sqrt(beta) * np.einsum('kij,kj->ki', self.noise_factor, xi)
+                change += self.noise_source.draw(beta)
             p = p + beta * self.dt * u
             u = u + change
             mean = u if plain else np.where((kappa == 1.0)[:, None], u,
@@ -287,7 +292,7 @@ def robot_shared_model(model, assignment: list[str], robots: list[str] | None = 
                           field_v=[model.field_v[i] for i in idx],
                           noise_cov=model.noise_cov[idx], frame_id=model.frame_id,
                           datum=model.datum,
-                          meta={'velocity_memory': model.velocity_memory[np.asarray(idx)]})
+                          meta=_robot_meta(model, idx))
 
 
 class SharedLawFollower(HerdFollower):
@@ -302,8 +307,7 @@ class SharedLawFollower(HerdFollower):
         self.dt = float(model.dt)
         self.damping = self.model.damping
         self.noise = bool(noise)
-        self.noise_factor = noise_factors(self.model.noise_cov)
-        self.rng = np.random.default_rng(seed)
+        self.noise_source = noise_for(self.model, seed)
 
     def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Σ_j F(d) e + g for every robot; inactive robots (NaN, stale) exert nothing."""

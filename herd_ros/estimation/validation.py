@@ -122,13 +122,11 @@ def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajector
     a = damping_only_fit(np.concatenate([aligned_positions(r, model.agents) for r in train]))
     summary['k_step_rms'] = {m: {str(k): v for k, v in d.items()}
                              for m, d in k_step_rms(model, evaluate_on, ks, damping=a).items()}
-    for a in model.agents:
-        vel, res = [], []
-        for r in evaluate_on:
-            p = aligned_positions(r, model.agents)
-            i = model.agents.index(a)
-            vel.append(np.diff(p[:, i], axis=0) / model.dt)
-            res.append(model.residuals(p)[:, i])
+    positions = [aligned_positions(r, model.agents) for r in evaluate_on]
+    residuals = [model.residuals(p) for p in positions]          # once per run, not per agent
+    for i, a in enumerate(model.agents):
+        vel = [np.diff(p[:, i], axis=0) / model.dt for p in positions]
+        res = [w[:, i] for w in residuals]
         wv, wr = whiteness(np.concatenate(vel)), whiteness(np.concatenate(res))
         damping, damping_se, basis, _, _ = agent_terms(model, a)
         summary['agents'][a] = {

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from herd_ros.errors import HerdInputError
-from herd_ros.model.rbf_field import RbfBasis
+from herd_ros.model.rbf_field import RbfBasis, agent_fields
 from herd_ros.model.velocity_memory import VelocityMemory
 
 KIND = 'schwager2007'
@@ -165,10 +165,7 @@ class HerdModel(VelocityMemory):
 
     def environment(self, positions: np.ndarray) -> np.ndarray:
         """g_i(p_i) for every agent: positions (..., N, 2) -> (..., N, 2)."""
-        p = np.asarray(positions, dtype=float)
-        d2 = ((p[..., :, None, :] - self._centers) ** 2).sum(-1)  # (..., N, K)
-        phi = np.exp(-d2 / (2.0 * self._sigma ** 2)) / (self._sigma * np.sqrt(2.0 * np.pi))
-        return (phi[..., None] * self._coef).sum(-2)
+        return agent_fields(positions, self._centers, self._sigma, self._coef)
 
     def drift(self, positions: np.ndarray) -> np.ndarray:
         """Σ_j f_ij(p) + g_i(p_i) for every agent (..., N, 2)."""

@@ -31,6 +31,7 @@ import yaml
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import KIND, AgentLaw, HerdModel
 from herd_ros.model.rbf_field import RbfBasis
+from herd_ros.model.noise_regimes import check_regimes
 from herd_ros.model.velocity_memory import check_memories
 
 ROS_TOKEN = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
@@ -95,6 +96,23 @@ def model_to_dict(model: HerdModel) -> dict:
     return body
 
 
+def read_regimes(cov, trans, n_agents: int, where: str):
+    """(covariances (N, K, 2, 2), transition (N, K, K)) from the flat model-file arrays."""
+    try:
+        c = np.asarray(cov, dtype=float).ravel()
+        t = np.asarray(trans, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise HerdInputError(f'{where}.noise_regime_cov/noise_regime_transition must be lists '
+                             f'of numbers') from None
+    k = len(c) // (4 * max(n_agents, 1))
+    if k < 1 or len(c) != 4 * k * n_agents or len(t) != k * k * n_agents:
+        raise HerdInputError(f'{where}: noise_regime_cov needs N × K × 4 numbers and '
+                             f'noise_regime_transition N × K × K ({n_agents} agents)')
+    pairs = [check_regimes(c.reshape(n_agents, k, 4)[i], t.reshape(n_agents, k, k)[i],
+                           f'{where}, agent {i}') for i in range(n_agents)]
+    return np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
+
+
 def add_model_meta(body: dict, model) -> None:
     """The model-wide keys kept in ``model.meta``:
 
@@ -104,9 +122,17 @@ def add_model_meta(body: dict, model) -> None:
       training residuals (written by ``herd-ros fit``; 1 if absent);
     * ``velocity_memory`` κ (:mod:`herd_ros.model.velocity_memory`): one number for the
       herd or one per agent (agents order); written when some κ < 1, absent = 1, the
-      paper's model.
+      paper's model;
+    * ``noise_regime_cov`` [N × K × (qxx, qxy, qyx, qyy)] and ``noise_regime_transition``
+      [N × K × K] (agents order, row-major): the stop-and-go noise of
+      :mod:`herd_ros.model.noise_regimes`; absent = Gaussian noise N(0, Q_i).
     """
     meta = model.meta or {}
+    regimes = meta.get('noise_regimes')
+    if regimes is not None:
+        cov, trans = regimes
+        body['noise_regime_cov'] = float_list(np.asarray(cov).ravel())
+        body['noise_regime_transition'] = float_list(np.asarray(trans).ravel())
     scale = meta.get('prediction_scale')
     if scale is not None:
         body['prediction_scale'] = float_list(scale)
@@ -119,6 +145,13 @@ def add_model_meta(body: dict, model) -> None:
 def read_model_meta(body: dict, n_agents: int, source: str) -> dict:
     """The ``meta`` entries for :func:`add_model_meta`'s keys, checked."""
     meta = {}
+    if ('noise_regime_cov' in body) != ('noise_regime_transition' in body):
+        raise HerdInputError(f'{source}: model.noise_regime_cov and '
+                             f'model.noise_regime_transition go together')
+    if 'noise_regime_cov' in body:
+        meta['noise_regimes'] = read_regimes(body['noise_regime_cov'],
+                                             body['noise_regime_transition'], n_agents,
+                                             f'{source}: model')
     if 'velocity_memory' in body:
         try:
             meta['velocity_memory'] = check_memories(body['velocity_memory'], n_agents)
@@ -235,6 +268,8 @@ def selection_entry(selection: dict) -> dict:
                                               # the model's own velocity_memory key is
                                               # what is used)
           loss: l2                            # or robust (--loss robust)
+          field: space-use                    # --field space-use (absent: fitted)
+          noise_regimes: 3                    # --noise regimes: K kept by BIC (absent: 1)
           cv_rms: 0.0707                      # one-step RMS (m) of the chosen structure
           cv_rms_constant_velocity: 0.0720
           cv_rms_stay_put: 0.4224
@@ -249,8 +284,12 @@ def selection_entry(selection: dict) -> dict:
     memory = np.atleast_1d(np.asarray(selection.get('velocity_memory', 1.0), dtype=float))
     if (memory != 1.0).any():
         out['velocity_memory'] = float(memory[0]) if len(memory) == 1 else float_list(memory)
-    out.update({'ridge': float(selection['ridge']), 'loss': selection.get('loss', 'l2'),
-                'cv_rms': float(cv['selected']),
+    out.update({'ridge': float(selection['ridge']), 'loss': selection.get('loss', 'l2')})
+    if selection.get('field', 'fitted') != 'fitted':
+        out['field'] = str(selection['field'])
+    if int(selection.get('noise_regimes', 1)) > 1:
+        out['noise_regimes'] = int(selection['noise_regimes'])
+    out.update({'cv_rms': float(cv['selected']),
                 'cv_rms_constant_velocity': float(cv['constant_velocity']),
                 'cv_rms_stay_put': float(cv['stay_put'])})
     return out

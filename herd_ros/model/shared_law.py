@@ -80,7 +80,7 @@ from herd_ros.errors import HerdInputError
 from herd_ros.model.model_file import (add_model_meta, check_agent_id, dump_parameters,
                                        float_list, load_model_body, read_model_meta,
                                        write_atomic)
-from herd_ros.model.rbf_field import RbfBasis
+from herd_ros.model.rbf_field import RbfBasis, agent_fields
 from herd_ros.model.velocity_memory import VelocityMemory
 
 KIND = 'schwager2007_shared'
@@ -344,10 +344,7 @@ class SharedLawModel(VelocityMemory):
 
     def environment(self, positions: np.ndarray) -> np.ndarray:
         """g_i(p_i) for positions (..., N, 2)."""
-        p = np.asarray(positions, dtype=float)
-        d2 = ((p[..., :, None, :] - self._centers) ** 2).sum(-1)
-        phi = np.exp(-d2 / (2.0 * self._sigma ** 2)) / (self._sigma * np.sqrt(2.0 * np.pi))
-        return (phi[..., None] * self._coef).sum(-2)
+        return agent_fields(positions, self._centers, self._sigma, self._coef)
 
     def drift(self, positions):
         return self.interaction(positions) + self.environment(positions)

@@ -1,4 +1,5 @@
-"""Forward simulation of a learned (or true) herd model, eq. 2 with noise w_i ~ N(0, Q_i).
+"""Forward simulation of a learned (or true) herd model, eq. 2 with noise w_i ~ N(0, Q_i)
+(or the model's stop-and-go noise regimes, :mod:`herd_ros.model.noise_regimes`).
 
     u^{τ+1} = a ⊙ u^τ + Σ_j f_ij(p^τ) + g_i(p^τ) + w^τ,     p^{τ+1} = p^τ + Δt u^τ
 
@@ -10,17 +11,9 @@ import numpy as np
 
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import HerdModel
+from herd_ros.model.noise_regimes import noise_for
 from herd_ros.model.velocity_memory import remember
 from herd_ros.trajectory import HerdTrajectory
-
-
-def noise_factors(noise_cov: np.ndarray) -> np.ndarray:
-    """L_i with L_i L_iᵀ = Q_i for (N, 2, 2) covariances (PSD; singular allowed)."""
-    Q = 0.5 * (noise_cov + np.swapaxes(noise_cov, -1, -2))
-    w, V = np.linalg.eigh(Q)
-    if (w < -1e-9 * np.maximum(np.abs(w).max(), 1e-300)).any():
-        raise HerdInputError('a noise covariance Q_i is not positive semi-definite')
-    return V * np.sqrt(np.clip(w, 0, None))[..., None, :]
 
 
 def simulate(model: HerdModel, steps: int, initial_positions: np.ndarray,
@@ -33,7 +26,8 @@ def simulate(model: HerdModel, steps: int, initial_positions: np.ndarray,
         initial_positions: (N, 2) p^0.
         initial_velocities: (N, 2) u^0 (default zero).
         seed: seed of the noise generator (``numpy.random.default_rng``).
-        noise: draw w from Q_i (else the deterministic law).
+        noise: draw w from Q_i, or from the model's noise regimes (else the deterministic
+            law).
     Returns:
         a :class:`HerdTrajectory` with times t0 + Δt·τ.
     """
@@ -43,8 +37,7 @@ def simulate(model: HerdModel, steps: int, initial_positions: np.ndarray,
     p = np.array(initial_positions, dtype=float).reshape(n, 2)
     u = (np.zeros((n, 2)) if initial_velocities is None
          else np.array(initial_velocities, dtype=float).reshape(n, 2))
-    rng = np.random.default_rng(seed)
-    L = noise_factors(model.noise_cov) * noise_scale
+    source = noise_for(model, seed, noise_scale) if noise else None
     out = np.empty((steps, n, 2))
     out[0] = p
     kappa = getattr(model, 'velocity_memory', 1.0)
@@ -52,7 +45,7 @@ def simulate(model: HerdModel, steps: int, initial_positions: np.ndarray,
     for tau in range(1, steps):
         u_next = model.next_velocity(mean_u, p)
         if noise:
-            u_next = u_next + np.einsum('nij,nj->ni', L, rng.standard_normal((n, 2)))
+            u_next = u_next + source.draw()
         p = p + model.dt * u
         u = u_next
         mean_u = remember(kappa, mean_u, u)
@@ -65,8 +58,22 @@ def simulate(model: HerdModel, steps: int, initial_positions: np.ndarray,
 
 def simulate_from(model: HerdModel, run: HerdTrajectory, steps: int | None = None, seed=None,
                   noise: bool = True) -> HerdTrajectory:
-    """Simulate from the first two positions of ``run`` (p^0 and u^0 = (p^1 − p^0)/Δt)."""
-    p = run.positions
-    steps = run.n_steps if steps is None else steps
-    return simulate(model, steps, p[0], (p[1] - p[0]) / model.dt, seed=seed, noise=noise,
-                    t0=float(run.times[0]))
+    """Simulate from the start of ``run``: from its first two consecutive steps where every
+    agent is present (p^0, u^0 = (p^1 − p^0)/Δt), for the rest of the run by default. A run
+    with no such pair (collars that never overlap) starts each agent from its own first two
+    consecutive positions."""
+    p = np.asarray(run.positions, dtype=float)
+    present = np.isfinite(p).all(-1)                                     # (T, N)
+    pair = present[:-1] & present[1:]
+    complete = pair.all(-1)
+    if complete.any():
+        k0 = int(np.argmax(complete))
+        p0, p1 = p[k0], p[k0 + 1]
+    else:
+        k0 = 0
+        first = np.argmax(pair, axis=0)                                  # (N,)
+        idx = np.arange(p.shape[1])
+        p0, p1 = p[first, idx], p[first + 1, idx]
+    steps = run.n_steps - k0 if steps is None else steps
+    return simulate(model, steps, p0, (p1 - p0) / model.dt, seed=seed, noise=noise,
+                    t0=float(run.times[k0]))

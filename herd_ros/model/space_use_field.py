@@ -1,0 +1,230 @@
+"""Space-use field: the environment field g_i that makes an agent's learned law spend its
+time where the animal did (a Langevin movement model).
+
+One step ahead, cross-validation seldom keeps a field (:mod:`model_selection`): at a clock of
+seconds the pull of a favourite corner is far below the noise of one step. Over hours it is
+what keeps a herd in its pen or range; a simulated herd without it diffuses away (a random
+walk of 72 h spreads 20 penned steers over 150 m). The Langevin movement model (Brillinger,
+Preisler, Ager & Kie 2001; Michelot, Gloaguen, Blackwell & Étienne 2019, *Methods Ecol.
+Evol.* 10:1894) gives the field that fixes the long run exactly: a diffusion
+
+    dp = ½ Σ ∇log π(p) dt + Σ^½ dW
+
+has π as its stationary density. For the law of eq. 2 with damping a_i, velocity memory κ
+and noise w ~ N(0, Q_i), a constant field g moves the agent by Δt·g/(1 − a_i) per step and
+the noise spreads it by Δt² Q_i/(1 − a_i)² per step (the zero-frequency gains of
+u = a ū + g + w, the same for every κ), so the law's positions diffuse like the equation
+above with drift Δt g/(1 − a_i) and Σ = Δt² Q_i/(1 − a_i)² when
+
+    g_i(p) = Δt / (2 (1 − a_i)) · Q_i ∇log π_i(p)                                 (S1)
+
+(valid when π_i varies slowly over the distance the velocity stays correlated, the
+overdamped limit; the same formula follows from the Boltzmann density of the underdamped
+limit, a → 1, with temperature Q_i/(2(1 − a_i))).
+
+π_i, the agent's utilization distribution, is a Gaussian kernel density of its positions
+(binned, Wand 1994, *J. Comput. Graph. Stat.* 3:433; its log-gradient exact); the
+bandwidth is Worton's (1989) reference bandwidth h = σ n^(−1/6) over the agent's positions
+(adehabitatHR's default, ``href``), or the given one. (S1) on the bins is
+projected by weighted least squares onto the RBF basis of eq. 5 (:mod:`rbf_field`) on a
+grid over the visited region widened by a quarter of its extent (spacing h, at most 20
+centres per axis), so the field is an ordinary
+field of the model file and every consumer (predict, simulate, the controller) uses it
+unchanged. Unlike the fitted field, this one is a gradient (no circulation), and it is
+exact only without interactions (they change the stationary density).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from herd_ros.errors import HerdInputError
+from herd_ros.model.rbf_field import FieldGrid, RbfBasis
+
+#: Bins per bandwidth of the binned positions and of the evaluation grid.
+BINS_PER_BANDWIDTH = 2
+#: At most this many bins along an axis (coarser bins for a wide region).
+MAX_BINS_PER_AXIS = 64
+#: The padding of the basis beyond the visited region: this many bandwidths, and at least
+#: this fraction of the region's extent (robots that wander out are pulled back in).
+PAD_BANDWIDTHS = 3.0
+PAD_FRACTION = 0.25
+#: RBF centres per bandwidth along each axis (spacing = bandwidth / this).
+CENTRES_PER_BANDWIDTH = 1.0
+#: At most this many RBF centres along an axis (a finer density is smoothed by the basis).
+MAX_CENTRES_PER_AXIS = 20
+
+
+@dataclass
+class UtilizationDensity:
+    """The kernel density π and its log-gradient at evaluation points ``points`` (E, 2):
+    ``density`` (E,) (normalised to sum 1 over the points), ``log_gradient`` (E, 2)
+    (1/m); ``bandwidth`` h (m)."""
+
+    points: np.ndarray
+    density: np.ndarray
+    log_gradient: np.ndarray
+    bandwidth: float
+
+
+def reference_bandwidth(points: np.ndarray, effective_n: float | None = None) -> float:
+    """Worton's reference bandwidth h = σ n^(−1/6), σ = √((σx² + σy²)/2), for ``points``
+    (M, 2); ``effective_n`` replaces M (autocorrelated positions are fewer independent
+    ones)."""
+    pts = _finite_points(points)
+    sigma = float(np.sqrt(0.5 * (pts[:, 0].var() + pts[:, 1].var())))
+    n = float(len(pts) if effective_n is None else effective_n)
+    if not sigma > 0:
+        raise HerdInputError('space-use field: the positions do not spread (σ = 0)')
+    return sigma * max(n, 2.0) ** (-1.0 / 6.0)
+
+
+def utilization_density(points: np.ndarray, bandwidth: float,
+                        bounds: tuple[float, float, float, float]) -> UtilizationDensity:
+    """Gaussian kernel density of ``points`` (M, 2) (σ = h) and its exact log-gradient
+
+        ∇log π(x) = (Σ_i c_i K_h(x − x_i) x_i / Σ_i c_i K_h(x − x_i) − x) / h²
+
+    at the bin centres of ``bounds``; the positions are first binned (c_i counts at bin
+    centres x_i, bins of h/2: the binned KDE of Wand 1994). Computed with log-sum-exp, so
+    the pull back towards the data is right far outside it too (where π underflows)."""
+    pts = _finite_points(points)
+    h = float(bandwidth)
+    if not h > 0:
+        raise HerdInputError(f'space-use bandwidth must be positive, got {bandwidth}')
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    samples, counts = _bin_centres(pts, (lo[0], hi[0] + 1e-9, lo[1], hi[1] + 1e-9), h)
+    xmin, xmax, ymin, ymax = bounds
+    b = max(h / BINS_PER_BANDWIDTH, max(xmax - xmin, ymax - ymin) / MAX_BINS_PER_AXIS)
+    gx, gy = np.meshgrid(np.arange(xmin + b / 2, xmax, b), np.arange(ymin + b / 2, ymax, b))
+    ev = np.column_stack([gx.ravel(), gy.ravel()])
+    logc = np.log(counts)
+    log_pi = np.empty(len(ev))
+    grad = np.empty((len(ev), 2))
+    for s0 in range(0, len(ev), 2048):
+        e = ev[s0:s0 + 2048]
+        d2 = ((e[:, None, :] - samples[None]) ** 2).sum(-1)
+        logk = logc[None] - d2 / (2.0 * h * h)
+        m = logk.max(axis=1, keepdims=True)
+        k = np.exp(logk - m)
+        den = k.sum(1)
+        log_pi[s0:s0 + 2048] = m[:, 0] + np.log(den)
+        grad[s0:s0 + 2048] = ((k @ samples) / den[:, None] - e) / (h * h)
+    dens = np.exp(log_pi - log_pi.max())
+    return UtilizationDensity(ev, dens / dens.sum(), grad, h)
+
+
+def _bin_centres(pts, bounds, h):
+    """Occupied bins of ``pts`` over ``bounds``: their centres (B, 2) and counts (B,)."""
+    xmin, xmax, ymin, ymax = bounds
+    b = max(h / BINS_PER_BANDWIDTH, max(xmax - xmin, ymax - ymin) / MAX_BINS_PER_AXIS)
+    nx = max(int(np.ceil((xmax - xmin) / b)), 1)
+    ny = max(int(np.ceil((ymax - ymin) / b)), 1)
+    hist, xe, ye = np.histogram2d(pts[:, 0], pts[:, 1], bins=(nx, ny),
+                                  range=((xmin, xmin + nx * b), (ymin, ymin + ny * b)))
+    ix, iy = np.nonzero(hist)
+    centres = np.column_stack([0.5 * (xe[ix] + xe[ix + 1]), 0.5 * (ye[iy] + ye[iy + 1])])
+    return centres, hist[ix, iy]
+
+
+def langevin_drift(density: UtilizationDensity, damping: float, noise_cov: np.ndarray,
+                   dt: float) -> np.ndarray:
+    """(S1) at the density's points: g(p) = Δt/(2(1 − a)) Q ∇log π(p), (E, 2) in m/s per
+    step."""
+    if not damping < 1.0:
+        raise HerdInputError(f'space-use field needs damping < 1 (a stationary law), '
+                             f'got {damping:.4g}')
+    q = np.asarray(noise_cov, dtype=float).reshape(2, 2)
+    return dt / (2.0 * (1.0 - damping)) * density.log_gradient @ q.T
+
+
+def project_on_basis(density: UtilizationDensity, drift: np.ndarray, basis: RbfBasis,
+                     ridge: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """θu, θv minimising Σ_points w (g(bin) − Σ_k θ_k φ_k(bin))², w = π + mean π (where the
+    agent is, and enough everywhere in the padded region to keep the pull back in)."""
+    phi = basis.features(density.points)
+    w = density.density
+    w = w + w.mean()
+    sw = np.sqrt(w)[:, None]
+    a = phi * sw
+    target = drift.reshape(-1, 2) * sw
+    gram = a.T @ a
+    gram[np.diag_indices_from(gram)] += ridge * np.trace(gram) / len(gram)
+    coef = np.linalg.solve(gram, a.T @ target)
+    return coef[:, 0], coef[:, 1]
+
+
+def space_use_field(positions: np.ndarray, damping: float, noise_cov: np.ndarray, dt: float,
+                    bandwidth: float | None = None, bounds=None):
+    """The field (S1) of one agent from its positions (T, 2) on the model clock (NaN where
+    missing): returns (basis, field_u, field_v, info) with info = bandwidth and bounds.
+
+    ``bounds`` (xmin, xmax, ymin, ymax) of the density and basis default to the visited
+    region widened by three bandwidths or a quarter of its extent, whichever is more."""
+    p = np.asarray(positions, dtype=float).reshape(-1, 2)
+    pts = _finite_points(p)
+    if bandwidth is None:
+        bandwidth = reference_bandwidth(pts)
+    h = float(bandwidth)
+    if bounds is None:
+        pad = max(PAD_BANDWIDTHS * h, PAD_FRACTION * float((pts.max(0) - pts.min(0)).max()))
+        lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
+        bounds = (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
+    density = utilization_density(pts, h, bounds)
+    drift = langevin_drift(density, damping, noise_cov, dt)
+    xmin, xmax, ymin, ymax = bounds
+    spacing = max(h / CENTRES_PER_BANDWIDTH,
+                  max(xmax - xmin, ymax - ymin) / MAX_CENTRES_PER_AXIS)
+    grid = FieldGrid(max(int(round((xmax - xmin) / spacing)), 1),
+                     max(int(round((ymax - ymin) / spacing)), 1), tuple(bounds))
+    basis = RbfBasis.from_grid(grid)
+    fu, fv = project_on_basis(density, drift, basis)
+    return basis, fu, fv, {'bandwidth': h, 'bounds': list(bounds)}
+
+
+def _finite_points(points) -> np.ndarray:
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    pts = pts[np.isfinite(pts).all(-1)]
+    if len(pts) < 3:
+        raise HerdInputError(f'space-use field needs at least 3 positions, got {len(pts)}')
+    return pts
+
+
+def with_space_use_field(model, positions: np.ndarray, bandwidth: float | None = None,
+                         progress=None):
+    """A copy of ``model`` (pairwise :class:`HerdModel` or shared law) whose every agent's
+    field g_i is the space-use field (S1) of its positions; ``positions`` (T, N, 2) in the
+    model's agents order, on its clock (runs may be stacked; NaN where missing). The
+    field's standard errors are 0 (it is not a least-squares estimate); the rest of θ_i
+    and its errors are kept. ``model.meta['space_use_bandwidth']`` records h per agent."""
+    import dataclasses
+
+    p = np.asarray(positions, dtype=float)
+    fields, bandwidths = [], []
+    for i, a in enumerate(model.agents):
+        basis, fu, fv, info = space_use_field(p[:, i], float(model.damping[i]),
+                                              model.noise_cov[i], model.dt, bandwidth)
+        fields.append((basis, fu, fv))
+        bandwidths.append(info['bandwidth'])
+        if progress is not None:
+            progress(1)
+    meta = {**(model.meta or {}), 'space_use_bandwidth': np.array(bandwidths)}
+    if hasattr(model, 'laws'):
+        laws = {}
+        for a, (basis, fu, fv) in zip(model.agents, fields):
+            law = model.laws[a]
+            se = law.theta_se
+            if se is not None:
+                keep = 1 + len(law.theta1) + len(law.theta2)
+                se = np.concatenate([se[:keep], np.zeros(2 * basis.size)])
+            laws[a] = dataclasses.replace(law, basis=basis, field_u=fu, field_v=fv, theta_se=se)
+        return type(model)(agents=list(model.agents), dt=model.dt, laws=laws,
+                           frame_id=model.frame_id, datum=model.datum, meta=meta)
+    se = model.theta_se
+    if se is not None:
+        se = [np.concatenate([np.asarray(s)[:len(s) - 2 * len(model.field_u[i])],
+                              np.zeros(2 * fields[i][0].size)]) for i, s in enumerate(se)]
+    return dataclasses.replace(model, bases=[f[0] for f in fields],
+                               field_u=[f[1] for f in fields], field_v=[f[2] for f in fields],
+                               theta_se=se, meta=meta)

@@ -1,0 +1,165 @@
+"""The long-run terms: the space-use (Langevin) field and the stop-and-go noise regimes.
+
+Checked against closed forms (the kernel density of a Gaussian cloud is a Gaussian, so the
+field is linear with a known slope), the stationary distribution a simulated law must reach,
+parameters of known-truth switching noise, and the model file.
+"""
+import numpy as np
+import pytest
+
+from herd_ros.control.herd_follower import HerdFollower
+from herd_ros.errors import HerdInputError
+from herd_ros.model.herd_model import AgentLaw, HerdModel
+from herd_ros.model.model_file import load_model, save_model
+from herd_ros.model.noise_regimes import (RegimeNoise, fit_herd_regimes, fit_regimes,
+                                          noise_for, stationary_distribution,
+                                          with_noise_regimes)
+from herd_ros.model.rbf_field import RbfBasis
+from herd_ros.model.space_use_field import space_use_field, with_space_use_field
+from herd_ros.simulation.herd_simulator import simulate
+
+
+def damping_model(damping, q=0.01, dt=1.0, memory=1.0):
+    agents = [f'a{k}' for k in range(len(damping))]
+    basis = RbfBasis(np.zeros((1, 2)), np.ones(1))
+    laws = {a: AgentLaw(damping=d, neighbors=[b for b in agents if b != a],
+                        theta1=np.zeros(len(agents) - 1), theta2=np.zeros(len(agents) - 1),
+                        basis=basis, field_u=[0.0], field_v=[0.0],
+                        noise_cov=q * np.diag([1.0, 0.5]))
+            for a, d in zip(agents, damping)}
+    return HerdModel(agents=agents, dt=dt, laws=laws, meta={'velocity_memory': memory})
+
+
+def test_the_field_of_a_gaussian_cloud_is_the_closed_form_linear_pull():
+    """Positions ~ N(μ, s²I): the kernel density with bandwidth h is N(μ, (s² + h²)I), so
+    (S1) gives g(p) = −Δt/(2(1 − a)) Q (p − μ)/(s² + h²) exactly."""
+    rng = np.random.default_rng(1)
+    mu, s, h, a, dt = np.array([30.0, -12.0]), 4.0, 1.0, 0.6, 5.0
+    q = np.array([[0.02, 0.005], [0.005, 0.01]])
+    pts = mu + s * rng.standard_normal((200_000, 2))
+    basis, fu, fv, info = space_use_field(pts, a, q, dt, bandwidth=h)
+    assert info['bandwidth'] == h
+    probe = mu + np.array([[0, 0], [3, 0], [0, -3], [-4, 4], [5, 2]], float)
+    phi = basis.features(probe)
+    got = np.column_stack([phi @ fu, phi @ fv])
+    want = -dt / (2 * (1 - a)) * (probe - mu) @ q.T / (s ** 2 + h ** 2)
+    scale = np.abs(want).max()
+    np.testing.assert_allclose(got, want, atol=0.05 * scale)
+
+
+def test_a_law_with_the_space_use_field_spends_its_time_where_the_samples_are():
+    """The stationary density is the target's: a two-lobed target (70 % / 30 %) and a
+    damped law with velocity memory; the simulated agents' time in each lobe and their
+    spread match the samples'."""
+    rng = np.random.default_rng(2)
+    m = 40_000
+    lobe = rng.random(m) < 0.7
+    target = np.where(lobe[:, None], [0.0, 0.0], [7.0, 0.0]) + 2.0 * rng.standard_normal((m, 2))
+    model = damping_model([0.5, 0.5, 0.5], q=0.02, memory=[0.35, 1.0, 1.0])
+    stacked = np.repeat(target[:, None, :], 3, axis=1)
+    model = with_space_use_field(model, stacked, bandwidth=1.0)
+    sim = simulate(model, 80_000, np.zeros((3, 2)), seed=3)
+    p = sim.positions[2000:].reshape(-1, 2)
+    assert (p[:, 0] > 3.5).mean() == pytest.approx((target[:, 0] > 3.5).mean(), abs=0.04)
+    np.testing.assert_allclose(p.mean(0), target.mean(0), atol=0.4)
+    # the kernel adds h² = 1 to each axis' variance
+    np.testing.assert_allclose(p.std(0), np.sqrt(target.var(0) + 1.0), rtol=0.08)
+
+
+def test_the_space_use_field_pulls_back_from_far_outside():
+    """Far beyond the visited region (where π underflows) the field still points home."""
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(0, 10, (5000, 2))
+    basis, fu, fv, info = space_use_field(pts, 0.5, 0.01 * np.eye(2), 1.0)
+    xmin, xmax, ymin, ymax = info['bounds']
+    probe = np.array([[xmax - 0.5, 5.0], [xmin + 0.5, 5.0], [5.0, ymax - 0.5], [5.0, ymin + 0.5]])
+    phi = basis.features(probe)
+    g = np.column_stack([phi @ fu, phi @ fv])
+    home = np.array([5.0, 5.0]) - probe
+    assert ((g * home).sum(1) > 0).all(), g
+
+
+def test_space_use_field_refuses_an_unstable_law():
+    with pytest.raises(HerdInputError, match='damping < 1'):
+        space_use_field(np.random.default_rng(0).standard_normal((100, 2)), 1.0,
+                        np.eye(2), 1.0)
+
+
+def switching_noise(n, cov, trans, seed):
+    rng = np.random.default_rng(seed)
+    z = np.empty(n, int)
+    z[0] = 0
+    for t in range(1, n):
+        z[t] = rng.choice(len(trans), p=trans[z[t - 1]])
+    L = np.linalg.cholesky(cov)
+    return np.einsum('tij,tj->ti', L[z], rng.standard_normal((n, 2))), z
+
+
+def test_baum_welch_recovers_known_switching_noise():
+    cov = np.array([np.diag([1e-4, 2e-4]), np.array([[0.04, 0.01], [0.01, 0.02]])])
+    trans = np.array([[0.95, 0.05], [0.10, 0.90]])
+    w, z = switching_noise(30_000, cov, trans, seed=5)
+    w[1000:1200] = np.nan                             # a gap: missing emissions
+    fit = fit_regimes(w, 2)
+    np.testing.assert_allclose(fit['covariances'], cov, rtol=0.1, atol=2e-5)
+    np.testing.assert_allclose(fit['transition'], trans, atol=0.02)
+    np.testing.assert_allclose(stationary_distribution(fit['transition']), [2 / 3, 1 / 3],
+                               atol=0.03)
+
+
+def test_bic_keeps_one_regime_for_gaussian_noise_and_two_for_switching():
+    rng = np.random.default_rng(6)
+    plain = 0.1 * rng.standard_normal((8000, 2, 2))
+    assert fit_herd_regimes(plain)['n_regimes'] == 1
+    cov = np.array([1e-4 * np.eye(2), 0.03 * np.eye(2)])
+    trans = np.array([[0.9, 0.1], [0.2, 0.8]])
+    w = np.stack([switching_noise(8000, cov, trans, seed=s)[0] for s in (7, 8)], axis=1)
+    assert fit_herd_regimes(w, counts=(1, 2))['n_regimes'] == 2
+
+
+def test_regime_noise_draws_keep_the_chain_and_its_dwell_time_in_model_steps():
+    """Stationary occupancy and the mean dwell time 1/(1 − Π_kk) in model steps, for whole
+    steps and for quarter steps (the follower's sub-steps)."""
+    cov = np.array([[1e-6 * np.eye(2), np.eye(2)]])
+    trans = np.array([[[0.9, 0.1], [0.3, 0.7]]])
+    for fraction, n in ((1.0, 20_000), (0.25, 60_000)):
+        src = RegimeNoise(cov, trans, rng=9)
+        states = np.empty(n, int)
+        for t in range(n):
+            src.draw(fraction)
+            states[t] = src.state[0]
+        assert (states == 1).mean() == pytest.approx(0.25, abs=0.025)
+        runs = np.diff(np.flatnonzero(np.diff(np.r_[-1, states, -1]) != 0))
+        first = states[np.r_[0, np.cumsum(runs)[:-1]]]
+        dwell_quiet = runs[first == 0].mean() * fraction
+        assert dwell_quiet == pytest.approx(10.0, rel=0.1)
+
+
+def test_regimes_round_trip_in_the_model_file_and_reach_the_robots(tmp_path):
+    model = damping_model([0.5, 0.4], q=0.01)
+    cov = np.array([np.array([1e-5 * np.eye(2), 0.03 * np.eye(2)])] * 2)
+    trans = np.array([[[0.9, 0.1], [0.2, 0.8]]] * 2)
+    # positions of a law whose residuals switch: velocity u' = a u + w
+    w = np.stack([switching_noise(6000, cov[0], trans[0], seed=s)[0] for s in (11, 12)], 1)
+    u = np.zeros((6000, 2, 2))
+    for t in range(1, 6000):
+        u[t] = np.array([0.5, 0.4])[:, None] * u[t - 1] + w[t]
+    p = np.cumsum(u, axis=0)
+    fitted, info = with_noise_regimes(model, [p], counts=(1, 2))
+    assert info['n_regimes'] == 2
+    got_cov, got_trans = fitted.meta['noise_regimes']
+    np.testing.assert_allclose(got_trans, trans, atol=0.04)
+    path = tmp_path / 'm.yaml'
+    save_model(fitted, path)
+    back = load_model(path)
+    np.testing.assert_allclose(back.meta['noise_regimes'][0], got_cov)
+    np.testing.assert_allclose(back.meta['noise_regimes'][1], got_trans)
+    assert isinstance(noise_for(back, 0), RegimeNoise)
+    follower = HerdFollower(back, ['a1', 'a1', 'a0'], noise=True, seed=1)
+    assert isinstance(follower.noise_source, RegimeNoise)
+    np.testing.assert_allclose(follower.noise_source.transition[1], got_trans[1])
+    # a file whose regimes do not fit together gets one clear error
+    text = path.read_text().replace('noise_regime_transition: [', 'noise_regime_transition: [0.5, ')
+    path.write_text(text)
+    with pytest.raises(HerdInputError, match='noise_regime'):
+        load_model(path)
