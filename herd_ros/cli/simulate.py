@@ -11,7 +11,8 @@ from herd_ros.simulation.herd_simulator import simulate
 from herd_ros.simulation.statistics import herd_statistics
 from herd_ros.trajectory import write_trajectory_csv
 
-HELP = 'simulate the learned laws of a model file (noise from each agent\'s Q_i)'
+HELP = ('simulate the learned laws of a model file (noise from each agent\'s Q_i, or its '
+        'noise regimes when the file has them)')
 
 
 def add_arguments(p):
