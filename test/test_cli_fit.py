@@ -212,3 +212,45 @@ def test_simulate_starts_a_late_agent_where_it_is_first_seen(tmp_path, capsys):
     # damping only, no noise: u^1 = a u^0, p^1 = p^0 + Δt u^0
     np.testing.assert_allclose(sim.positions[1], [[1.0, 0.0], [0.0, 13.0]])
     np.testing.assert_allclose(sim.positions[2], [[1.0 + 0.8, 0.0], [0.0, 13.5]])
+
+
+def test_fit_long_run_terms_write_the_field_and_regimes_and_simulate_uses_them(tmp_path, capsys):
+    """`fit --field space-use --noise regimes` on two agents whose noise switches between
+    resting and moving (u' = a u + w): the file carries the regimes and a space-use field,
+    `simulate` runs from it; the online fit refuses the options with one line."""
+    rng = np.random.default_rng(4)
+    n = 6000
+    cov = np.array([1e-5 * np.eye(2), 0.02 * np.eye(2)])
+    trans = np.array([[0.95, 0.05], [0.1, 0.9]])
+    rows = []
+    for k, a in enumerate((0.6, 0.4)):
+        z, u, p = 0, np.zeros(2), np.array([10.0 * k, 0.0])
+        for t in range(n):
+            z = rng.choice(2, p=trans[z])
+            u = a * u + np.linalg.cholesky(cov[z]) @ rng.standard_normal(2) - 0.002 * p
+            p = p + u
+            rows.append(f'{t}.0,agent_{k + 1},{p[0]:.5f},{p[1]:.5f}\n')
+    data = tmp_path / 'stopgo.csv'
+    data.write_text(HEADER + ''.join(sorted(rows, key=lambda r: float(r.split(',')[0]))))
+    model_path = tmp_path / 'm.yaml'
+    status, out, _ = run_cli(['fit', data, '-o', model_path, '--terms', 'damping',
+                              '--field', 'space-use', '--noise', 'regimes'], capsys)
+    assert status == 0
+    assert 'noise regimes: BIC keeps' in out and 'space-use field' in out
+    assert 'simulated herd vs training data' in out
+    body = yaml.safe_load(model_path.read_text())['/**']['ros__parameters']['model']
+    k = body['selection']['noise_regimes']
+    assert k in (2, 3) and f'BIC keeps {k}' in out          # the data switch; K = 1 is out
+    assert len(body['noise_regime_cov']) == 2 * k * 4
+    assert len(body['noise_regime_transition']) == 2 * k * k
+    assert body['selection']['field'] == 'space-use'
+    assert len(body['agent_1']['field_u']) > 1 and any(body['agent_1']['field_u'])
+    model = load_model(model_path)
+    assert model.meta['noise_regimes'][1].shape == (2, k, k)
+    status, _, _ = run_cli(['simulate', model_path, '--steps', '400', '-o', tmp_path / 's.csv'],
+                           capsys)
+    assert status == 0
+    assert np.isfinite(read_trajectory_csv(tmp_path / 's.csv')[0].positions).all()
+    status, _, err = run_cli(['fit', data, '-o', tmp_path / 'x.yaml', '--online',
+                              '--noise', 'regimes'], capsys)
+    assert status == 2 and 'batch fit' in err and len(err.strip().splitlines()) == 1
