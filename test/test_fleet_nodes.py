@@ -156,6 +156,43 @@ def test_a_command_takes_effect_on_arrival_and_poses_sit_on_the_period_grid(grap
     np.testing.assert_allclose(dx[first + 1:], v * h, rtol=1e-9)
 
 
+def test_sim_time_starting_late_or_jumping_does_not_stall_fleet_sim(graph):
+    """On sim time the node clock reads 0 until the first /clock, then jumps to the bag's
+    time (1.78e9 s): a command arriving before /clock must not anchor the pose grid at 0
+    (stepping 10⁸ periods to catch up stalled the node: no /fleet/poses at all); a later
+    jump forward restarts the grid, logged."""
+    from rosgraph_msgs.msg import Clock
+    g, ear = graph
+    poses = ear.record(Odometry, '/fleet/r1/odom')
+    g.start('fleet_sim', '-p', 'robots:=[r1]', '-p', 'initial_poses:=[0.0, 0.0, 0.0]',
+            '-p', 'rate_hz:=10.0', '-p', 'use_sim_time:=true', '-p', 'cmd_timeout_s:=100.0')
+    cmd = ear.node.create_publisher(Twist, '/fleet/r1/cmd_vel', 10)
+    clock = ear.node.create_publisher(Clock, '/clock', 10)
+    assert ear.spin(20.0, until=lambda: cmd.get_subscription_count() > 0
+                    and clock.get_subscription_count() > 0)
+    msg = Twist()
+    msg.linear.x = 0.2
+    for _ in range(3):                         # commands before any /clock
+        cmd.publish(msg)
+        ear.spin(0.1)
+
+    def tick(t):
+        c = Clock()
+        c.clock.sec, c.clock.nanosec = int(t), int(round((t - int(t)) * 1e9))
+        clock.publish(c)
+
+    for start in (1_781_532_000.0, 1_781_900_000.0):   # sim time starts, then jumps
+        seen = len(poses)
+        for k in range(40):
+            tick(start + 0.05 * k)
+            ear.spin(0.05)
+        assert ear.spin(5.0, until=lambda: len(poses) >= seen + 5), g.output('fleet_sim')
+        stamps = np.array([stamp(m) for _, m in poses[seen:]])
+        assert (stamps >= start - 1e-6).all() and (stamps <= start + 2.0).all(), stamps
+        np.testing.assert_allclose(np.round(stamps * 10) / 10, stamps, atol=1e-5)
+    assert 'clock jumped' in g.output('fleet_sim')
+
+
 def test_stale_odometry_gives_zero_commands_within_one_period(graph):
     g, ear = graph
     cmds = ear.record(Twist, '/fleet/r1/cmd_vel')

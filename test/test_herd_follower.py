@@ -159,3 +159,21 @@ def test_clock_hold_moves_the_discrete_law_on_the_herd_clock(phase):
     v = np.diff(at_ticks) / dt
     np.testing.assert_allclose(v[1:], a * v[:-1], rtol=1e-9)
     assert v[0] > 0
+
+
+def test_the_clock_hold_restarts_after_a_jump_of_the_clock_instead_of_stepping_through_it():
+    """A controller on sim time may see the clock jump by days (a replay started late or
+    resumed): the hold steps the law once from what the robots did (as on its first tick),
+    not 10⁸ times."""
+    import time
+    from herd_ros.control.herd_follower import HerdClockHold
+    model = make_truth_model(3, seed=1)
+    follower = HerdFollower(model, list(model.agents))
+    hold = HerdClockHold(model.dt)
+    p = np.array([[0.0, 0.0], [5.0, 0.0], [0.0, 5.0]])
+    issued = np.full((3, 2), 0.1)
+    hold.command(follower, issued, p, 10.0)
+    began = time.perf_counter()
+    got = hold.command(follower, issued, p, 10.0 + 1e8 * model.dt)
+    assert time.perf_counter() - began < 1.0
+    np.testing.assert_allclose(got, follower.advance(issued, p, model.dt), rtol=1e-12)

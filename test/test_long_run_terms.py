@@ -163,3 +163,25 @@ def test_regimes_round_trip_in_the_model_file_and_reach_the_robots(tmp_path):
     path.write_text(text)
     with pytest.raises(HerdInputError, match='noise_regime'):
         load_model(path)
+
+
+def test_an_agent_without_enough_data_keeps_its_fitted_field_and_gaussian_noise():
+    """Bad input loses nothing: an agent with two positions keeps its fitted field (and the
+    reason is recorded); one with a handful of residuals keeps Gaussian noise while the
+    others get their regimes."""
+    model = damping_model([0.5, 0.5], q=0.01)
+    rng = np.random.default_rng(13)
+    p = rng.standard_normal((3000, 2, 2)).cumsum(0) * 0.01
+    p[2:, 1] = np.nan                                   # agent a1: two positions only
+    out = with_space_use_field(model, p)
+    assert out.laws['a1'].basis.size == 1 and 'a1' in out.meta['space_use_kept_fitted']
+    assert out.laws['a0'].basis.size > 1 and 'a0' not in out.meta['space_use_kept_fitted']
+    cov = np.array([1e-5 * np.eye(2), 0.03 * np.eye(2)])
+    trans = np.array([[0.9, 0.1], [0.2, 0.8]])
+    w = np.full((5000, 2, 2), np.nan)
+    w[:, 0] = switching_noise(5000, cov, trans, seed=14)[0]
+    w[:8, 1] = 0.1 * rng.standard_normal((8, 2))        # a1: 8 residuals
+    fit = fit_herd_regimes(w, counts=(1, 2))
+    assert fit['n_regimes'] == 2 and fit['too_few'] == [1]
+    flat = fit['agents'][1]['covariances']
+    np.testing.assert_allclose(flat[0], flat[1])

@@ -209,7 +209,10 @@ def _long_run_terms(fit, train, args, chosen):
         bar.close()
         chosen['field'] = 'space-use'
         h = model.meta['space_use_bandwidth']
-        print(f'space-use field: kernel bandwidth {h.min():.2f}-{h.max():.2f} m')
+        if np.isfinite(h).any():
+            print(f'space-use field: kernel bandwidth {np.nanmin(h):.2f}-{np.nanmax(h):.2f} m')
+        for agent, why in model.meta['space_use_kept_fitted'].items():
+            print(f'space-use field: {agent} keeps its fitted field ({why})')
     if args.noise == 'regimes':
         from herd_ros.model.noise_regimes import with_noise_regimes
         print('noise regimes: fitting 1-3 regimes per agent (Baum-Welch) ...', flush=True)
@@ -217,6 +220,9 @@ def _long_run_terms(fit, train, args, chosen):
         chosen['noise_regimes'] = regimes['n_regimes']
         print(f'noise regimes: BIC keeps {regimes["n_regimes"]} (' + ', '.join(
             f'K={k}: {v:.0f}' for k, v in sorted(regimes['bic'].items())) + ')')
+        if regimes['n_regimes'] > 1 and regimes['too_few']:
+            print('noise regimes: too few residuals, Gaussian noise kept for ' + ', '.join(
+                model.agents[i] for i in regimes['too_few']))
     return dataclasses.replace(fit, model=model) if model is not fit.model else fit
 
 

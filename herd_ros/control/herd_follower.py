@@ -40,6 +40,10 @@ from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import AgentLaw, HerdModel, pairwise_geometry
 from herd_ros.model.noise_regimes import noise_for, subset_regimes
 
+#: Herd-clock steps the hold steps the law through at once; a longer jump of the clock (sim
+#: time starting, a replay resumed) restarts the law from what the robots do.
+MAX_HELD_STEPS = 50
+
 #: Distances below this (m) are treated as this in the repulsion θ2/d (co-located robots).
 MIN_DISTANCE = 1e-3
 
@@ -210,7 +214,7 @@ class HerdClockHold:
         issued = np.asarray(issued, dtype=float).reshape(-1, 2)
         k = int(np.floor(now / self.dt + 1e-9))
         fresh = (self.law is None or self.law.shape != issued.shape or self.index is None
-                 or k < self.index)
+                 or k < self.index or k - self.index > MAX_HELD_STEPS)
         if not fresh and k == self.index:
             return self.asked.copy()
         if fresh:

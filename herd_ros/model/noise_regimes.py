@@ -127,21 +127,41 @@ def fit_regimes(residuals: np.ndarray, n_regimes: int, iterations: int = 200,
 
 def fit_herd_regimes(residuals: np.ndarray, counts=REGIME_COUNTS) -> dict:
     """One K for the herd by BIC (−2 log L + p log n summed over agents), residuals
-    (T, N, 2) -> {'n_regimes': K, 'bic': {K: value}, 'agents': [fit_regimes per agent]}."""
+    (T, N, 2) -> {'n_regimes': K, 'bic': {K: value}, 'agents': [fit_regimes per agent],
+    'too_few': [indices of agents with too few residuals]}.
+
+    An agent with too few residuals for K regimes (fewer than 10 K) gets K copies of its
+    residuals' covariance (Gaussian noise in K regimes' clothing) and adds nothing to the
+    BIC; the herd needs at least one agent that can be fitted."""
     r = np.asarray(residuals, dtype=float)
-    fits, bic = {}, {}
+    fits, bic, too_few = {}, {}, {}
     for k in counts:
-        try:
-            per = [fit_regimes(r[:, i], k) for i in range(r.shape[1])]
-        except HerdInputError:
+        per, short = [], []
+        for i in range(r.shape[1]):
+            try:
+                per.append(fit_regimes(r[:, i], k))
+            except HerdInputError:
+                per.append(_flat_regimes(r[:, i], k))
+                short.append(i)
+        if len(short) == r.shape[1]:
             continue
-        fits[k] = per
+        fits[k], too_few[k] = per, short
         bic[k] = float(sum(-2.0 * f['log_likelihood'] + f['n_parameters'] * np.log(f['n_samples'])
-                           for f in per))
+                           for f in per if f['n_samples']))
     if not bic:
         raise HerdInputError('noise regimes: too few residuals to fit any regime')
     best = min(bic, key=bic.get)
-    return {'n_regimes': best, 'bic': bic, 'agents': fits[best]}
+    return {'n_regimes': best, 'bic': bic, 'agents': fits[best], 'too_few': too_few[best]}
+
+
+def _flat_regimes(residuals: np.ndarray, k: int) -> dict:
+    """K identical regimes (the residuals' covariance, 0 without residuals), uniform
+    transitions: Gaussian noise, for an agent with too few residuals to fit."""
+    r = residuals[np.isfinite(residuals).all(-1)]
+    cov = r.T @ r / len(r) if len(r) else np.zeros((2, 2))
+    return {'covariances': np.repeat(cov[None], k, axis=0), 'transition': np.full((k, k), 1 / k),
+            'initial': np.full(k, 1 / k), 'log_likelihood': 0.0, 'n_samples': 0,
+            'n_parameters': 0}
 
 
 class RegimeNoise:
@@ -298,7 +318,9 @@ def with_noise_regimes(model, runs_positions: list, counts=REGIME_COUNTS) -> tup
     trans = np.stack([f['transition'] for f in fit['agents']])
     for i in range(model.n_agents):
         mean = np.einsum('k,kij->ij', stationary_distribution(trans[i]), cov[i])
-        scale = np.trace(model.noise_cov[i]) / max(np.trace(mean), 1e-300)
-        cov[i] *= scale
+        if i in fit['too_few'] or not np.trace(mean) > 0:
+            cov[i] = model.noise_cov[i]               # Gaussian noise, as the model has it
+        else:
+            cov[i] *= np.trace(model.noise_cov[i]) / np.trace(mean)
     meta = {**(model.meta or {}), 'noise_regimes': (cov, trans)}
     return dataclasses.replace(model, meta=meta), fit

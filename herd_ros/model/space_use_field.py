@@ -183,6 +183,14 @@ def space_use_field(positions: np.ndarray, damping: float, noise_cov: np.ndarray
     return basis, fu, fv, {'bandwidth': h, 'bounds': list(bounds)}
 
 
+def _agent_field(model, i: int):
+    """Agent i's current (basis, field_u, field_v) in either model kind."""
+    if hasattr(model, 'laws'):
+        law = model.laws[model.agents[i]]
+        return law.basis, law.field_u, law.field_v
+    return model.bases[i], model.field_u[i], model.field_v[i]
+
+
 def _finite_points(points) -> np.ndarray:
     pts = np.asarray(points, dtype=float).reshape(-1, 2)
     pts = pts[np.isfinite(pts).all(-1)]
@@ -197,19 +205,27 @@ def with_space_use_field(model, positions: np.ndarray, bandwidth: float | None =
     field g_i is the space-use field (S1) of its positions; ``positions`` (T, N, 2) in the
     model's agents order, on its clock (runs may be stacked; NaN where missing). The
     field's standard errors are 0 (it is not a least-squares estimate); the rest of θ_i
-    and its errors are kept. ``model.meta['space_use_bandwidth']`` records h per agent."""
+    and its errors are kept. ``model.meta['space_use_bandwidth']`` records h per agent; an
+    agent whose field cannot be made (too few positions, damping ≥ 1) keeps its fitted
+    field, and ``model.meta['space_use_kept_fitted']`` says why ({agent: reason})."""
     import dataclasses
 
     p = np.asarray(positions, dtype=float)
-    fields, bandwidths = [], []
+    fields, bandwidths, kept = [], [], {}
     for i, a in enumerate(model.agents):
-        basis, fu, fv, info = space_use_field(p[:, i], float(model.damping[i]),
-                                              model.noise_cov[i], model.dt, bandwidth)
+        try:
+            basis, fu, fv, info = space_use_field(p[:, i], float(model.damping[i]),
+                                                  model.noise_cov[i], model.dt, bandwidth)
+            bandwidths.append(info['bandwidth'])
+        except HerdInputError as err:                 # too few positions, an unstable law
+            basis, fu, fv = _agent_field(model, i)
+            kept[a] = str(err)
+            bandwidths.append(np.nan)
         fields.append((basis, fu, fv))
-        bandwidths.append(info['bandwidth'])
         if progress is not None:
             progress(1)
-    meta = {**(model.meta or {}), 'space_use_bandwidth': np.array(bandwidths)}
+    meta = {**(model.meta or {}), 'space_use_bandwidth': np.array(bandwidths),
+            'space_use_kept_fitted': kept}
     if hasattr(model, 'laws'):
         laws = {}
         for a, (basis, fu, fv) in zip(model.agents, fields):

@@ -62,6 +62,10 @@ DEFAULTS = {
 
 
 
+#: Periods of a clock jump fleet_sim integrates through; a longer jump restarts its grid.
+MAX_CATCH_UP = 100
+
+
 def yaw_to_quaternion(yaw: float):
     return 0.0, 0.0, float(np.sin(yaw / 2.0)), float(np.cos(yaw / 2.0))
 
@@ -182,7 +186,16 @@ class FleetSim(Node):
         those grid times, stamped with them (with rate_hz = 2/Δt the grid holds every
         herd-clock tick k·Δt, so a robot is measured at the ticks its animal is)."""
         period = 1.0 / self.cfg.rate_hz
-        if self._last_step is None:
+        if now <= 0.0:                  # sim time before the first /clock: nothing yet
+            return
+        if (self._last_step is None or now < self._last_step - 1e-9
+                or now - self._next_grid > MAX_CATCH_UP * period):
+            # the first call, time going backwards (a bag replayed again) or a jump (sim
+            # time starting, a replay resumed): the grid restarts at now, the robots where
+            # they are (stepping the gap one period at a time would stall the node)
+            if self._last_step is not None:
+                self.get_logger().warn(f'clock jumped from {self._last_step:.3f} to {now:.3f} s: '
+                                       f'the robots hold their state across the jump')
             self._last_step = now
             self._next_grid = np.ceil(now / period - 1e-9) * period
         while self._next_grid <= now + 1e-9:
