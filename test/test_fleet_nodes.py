@@ -181,14 +181,14 @@ def test_sim_time_starting_late_or_jumping_does_not_stall_fleet_sim(graph):
         c.clock.sec, c.clock.nanosec = int(t), int(round((t - int(t)) * 1e9))
         clock.publish(c)
 
-    for start in (1_781_532_000.0, 1_781_900_000.0):   # sim time starts, then jumps
+    for t0 in (1_781_532_000.0, 1_781_900_000.0):      # sim time starts, then jumps
         seen = len(poses)
         for k in range(40):
-            tick(start + 0.05 * k)
+            tick(t0 + 0.05 * k)
             ear.spin(0.05)
         assert ear.spin(5.0, until=lambda: len(poses) >= seen + 5), g.output('fleet_sim')
         stamps = np.array([stamp(m) for _, m in poses[seen:]])
-        assert (stamps >= start - 1e-6).all() and (stamps <= start + 2.0).all(), stamps
+        assert (stamps >= t0 - 1e-6).all() and (stamps <= t0 + 2.0).all(), stamps
         np.testing.assert_allclose(np.round(stamps * 10) / 10, stamps, atol=1e-5)
     assert 'clock jumped' in g.output('fleet_sim')
 
