@@ -157,6 +157,8 @@ class HerdModel(VelocityMemory):
     def interaction(self, positions: np.ndarray) -> np.ndarray:
         """Σ_j f_ij for every agent: positions (..., N, 2) -> (..., N, 2). A missing
         neighbour (NaN position) drops out of the sum."""
+        if not (self.theta1.any() or self.theta2.any()):
+            return np.zeros(np.shape(positions))   # no pair term kept (a damping-only fit)
         _, dist, unit = pairwise_geometry(positions)
         with np.errstate(invalid='ignore'):
             mag = self.theta1 - self.theta2 / dist  # (..., N, N); diagonal: 0 - 0/inf = 0

@@ -104,17 +104,12 @@ def fit_regimes(residuals: np.ndarray, n_regimes: int, iterations: int = 200,
     init = np.full(k, 1.0 / k)
     floor = 1e-9 * power.mean() * np.eye(2)
     last = -np.inf
+    okf = ok.astype(np.float64)
     for _ in range(iterations):
-        logb = _log_emissions(r0, ok, cov)
-        gamma, xi_sum, loglik = _forward_backward(logb, trans, init)
-        weight = gamma * ok[:, None]
-        wsum = weight.sum(0)
-        cov = np.stack([(weight[:, j, None] * r0).T @ r0 for j in range(k)])
-        cov = cov / np.maximum(wsum, 1e-300)[:, None, None]
+        cov, trans_new, init, loglik = _em_step(r0, okf, cov, trans, init)
         cov = cov + floor
         if k > 1:
-            trans = xi_sum / np.maximum(xi_sum.sum(1, keepdims=True), 1e-300)
-        init = gamma[0]
+            trans = trans_new
         if loglik - last < tol * abs(loglik):
             break
         last = loglik
@@ -230,71 +225,105 @@ def subset_regimes(meta: dict, index) -> dict:
     return {'noise_regimes': (np.asarray(regimes[0])[idx], np.asarray(regimes[1])[idx])}
 
 
-def _log_emissions(r0, ok, cov) -> np.ndarray:
-    """log N(r; 0, Q_k) per step and regime (T, K); 0 where the residual is missing."""
-    inv = np.linalg.inv(cov)
-    _, logdet = np.linalg.slogdet(cov)
-    quad = ((r0 @ inv) * r0).sum(-1).T                       # (K, T, 2) -> (T, K)
-    logb = -0.5 * quad - 0.5 * logdet - np.log(2.0 * np.pi)
-    return np.where(ok[:, None], logb, 0.0)
-
-
 @njit(cache=True)
-def _forward_backward(logb, trans, init):  # pragma: no cover - compiled
-    """Scaled forward–backward (Rabiner 1989): γ (T, K), Σ_t ξ_t (K, K), log L."""
-    t_len, k = logb.shape
-    alpha = np.empty((t_len, k))
-    scale = np.empty(t_len)
-    b = np.empty((t_len, k))
+def _em_step(r, ok, cov, trans, init):  # pragma: no cover - compiled
+    """One Baum–Welch iteration (Rabiner 1989; scaled forward–backward): r (T, 2) residuals
+    (0 where missing), ok (T,) 1/0, cov (K, 2, 2), trans (K, K), init (K,) -> (new cov, new
+    trans, new init, log L of the given parameters). A missing residual has emission 1."""
+    t_len = r.shape[0]
+    k = cov.shape[0]
+    inv = np.empty((k, 3))
+    lognorm = np.empty(k)
+    for j in range(k):
+        a, b, d = cov[j, 0, 0], 0.5 * (cov[j, 0, 1] + cov[j, 1, 0]), cov[j, 1, 1]
+        det = a * d - b * b
+        inv[j, 0], inv[j, 1], inv[j, 2] = d / det, -b / det, a / det
+        lognorm[j] = -np.log(2.0 * np.pi) - 0.5 * np.log(det)
+    em = np.empty((t_len, k))
+    shift = np.empty(t_len)
     for t in range(t_len):
-        m = logb[t].max()
+        m = -np.inf
         for j in range(k):
-            b[t, j] = np.exp(logb[t, j] - m)
-        scale[t] = m
+            if ok[t] > 0.0:
+                x, y = r[t, 0], r[t, 1]
+                v = lognorm[j] - 0.5 * (inv[j, 0] * x * x + 2.0 * inv[j, 1] * x * y
+                                        + inv[j, 2] * y * y)
+            else:
+                v = 0.0
+            em[t, j] = v
+            if v > m:
+                m = v
+        shift[t] = m
+        for j in range(k):
+            em[t, j] = np.exp(em[t, j] - m)
+    alpha = np.empty((t_len, k))
     loglik = 0.0
     for t in range(t_len):
         s = 0.0
         for j in range(k):
             if t == 0:
-                a = init[j]
+                acc = init[j]
             else:
-                a = 0.0
+                acc = 0.0
                 for i in range(k):
-                    a += alpha[t - 1, i] * trans[i, j]
-            alpha[t, j] = a * b[t, j]
+                    acc += alpha[t - 1, i] * trans[i, j]
+            alpha[t, j] = acc * em[t, j]
             s += alpha[t, j]
         for j in range(k):
             alpha[t, j] /= s
-        loglik += np.log(s) + scale[t]
-    beta = np.empty((t_len, k))
+        loglik += np.log(s) + shift[t]
+    beta = np.ones(k)
+    nxt = np.empty(k)
+    xi = np.zeros((k, k))
+    wsum = np.zeros(k)
+    rr = np.zeros((k, 3))
+    new_init = np.empty(k)
+    for t in range(t_len - 1, -1, -1):
+        if t < t_len - 1:
+            norm = 0.0
+            for i in range(k):
+                for j in range(k):
+                    norm += alpha[t, i] * trans[i, j] * em[t + 1, j] * nxt[j]
+            for i in range(k):
+                for j in range(k):
+                    xi[i, j] += alpha[t, i] * trans[i, j] * em[t + 1, j] * nxt[j] / norm
+            s = 0.0
+            for i in range(k):
+                acc = 0.0
+                for j in range(k):
+                    acc += trans[i, j] * em[t + 1, j] * nxt[j]
+                beta[i] = acc
+                s += acc
+            for i in range(k):
+                beta[i] /= s
+        g = 0.0
+        for j in range(k):
+            g += alpha[t, j] * beta[j]
+        for j in range(k):
+            gamma = alpha[t, j] * beta[j] / g
+            if t == 0:
+                new_init[j] = gamma
+            if ok[t] > 0.0:
+                wsum[j] += gamma
+                rr[j, 0] += gamma * r[t, 0] * r[t, 0]
+                rr[j, 1] += gamma * r[t, 0] * r[t, 1]
+                rr[j, 2] += gamma * r[t, 1] * r[t, 1]
+        for j in range(k):
+            nxt[j] = beta[j]
+    new_cov = np.empty((k, 2, 2))
+    new_trans = np.empty((k, k))
     for j in range(k):
-        beta[t_len - 1, j] = 1.0
-    xi_sum = np.zeros((k, k))
-    for t in range(t_len - 2, -1, -1):
-        s = 0.0
+        w = max(wsum[j], 1e-300)
+        new_cov[j, 0, 0] = rr[j, 0] / w
+        new_cov[j, 0, 1] = rr[j, 1] / w
+        new_cov[j, 1, 0] = rr[j, 1] / w
+        new_cov[j, 1, 1] = rr[j, 2] / w
+        row = 0.0
         for i in range(k):
-            acc = 0.0
-            for j in range(k):
-                acc += trans[i, j] * b[t + 1, j] * beta[t + 1, j]
-            beta[t, i] = acc
-            s += acc
+            row += xi[j, i]
         for i in range(k):
-            beta[t, i] /= s
-        norm = 0.0
-        for i in range(k):
-            for j in range(k):
-                norm += alpha[t, i] * trans[i, j] * b[t + 1, j] * beta[t + 1, j]
-        for i in range(k):
-            for j in range(k):
-                xi_sum[i, j] += alpha[t, i] * trans[i, j] * b[t + 1, j] * beta[t + 1, j] / norm
-    gamma = alpha * beta
-    for t in range(t_len):
-        s = 0.0
-        for j in range(k):
-            s += gamma[t, j]
-        for j in range(k):
-            gamma[t, j] /= s
-    return gamma, xi_sum, loglik
+            new_trans[j, i] = xi[j, i] / max(row, 1e-300)
+    return new_cov, new_trans, new_init, loglik
 
 
 def with_noise_regimes(model, runs_positions: list, counts=REGIME_COUNTS) -> tuple:

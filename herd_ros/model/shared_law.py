@@ -302,6 +302,8 @@ class SharedLawModel(VelocityMemory):
         """Σ_{j: d<r} F_i(d_ij) e_ij (+ Σ_k H_ik(d_ik) e_ik over the distinguished agents)
         for positions (N, 2) or (T, N, 2)."""
         p = np.asarray(positions, dtype=float)
+        if not (self.profile_coef.any() or self.own_coef.any()):
+            return np.zeros(p.shape)               # no interaction kept (a damping-only fit)
         if p.ndim == 3:
             if p.shape[1] <= DENSE_MAX_AGENTS:
                 return self._interaction_dense(p)
