@@ -26,6 +26,10 @@ except ImportError:  # pragma: no cover - numba is an install requirement
 
 SQRT_2PI = float(np.sqrt(2.0 * np.pi))
 
+#: Up to this many (step, agent, centre) terms the field is evaluated with numpy (a node's
+#: tick), above it with the compiled loop (runs, simulations).
+SMALL_FIELD_EVALUATION = 50_000
+
 #: Default number of samples of an agent that must fall in a cell to keep its centre.
 DEFAULT_MIN_VISITS = 10
 
@@ -145,6 +149,11 @@ def agent_fields(positions: np.ndarray, centers: np.ndarray, sigma: np.ndarray,
     costs what the centres near the agent cost. A NaN position gives NaN."""
     p = np.asarray(positions, dtype=float)
     flat = np.ascontiguousarray(p.reshape((-1,) + p.shape[-2:]))
+    if flat.shape[0] * centers.shape[0] * centers.shape[1] <= SMALL_FIELD_EVALUATION:
+        # one snapshot (a node's tick): numpy, no compilation in a live node
+        d2 = ((flat[..., :, None, :] - centers) ** 2).sum(-1)
+        phi = np.exp(-d2 / (2.0 * sigma ** 2)) / (sigma * SQRT_2PI)
+        return (phi[..., None] * coef).sum(-2).reshape(p.shape)
     out = _agent_fields(flat, np.ascontiguousarray(centers, dtype=float),
                         np.ascontiguousarray(sigma, dtype=float),
                         np.ascontiguousarray(coef, dtype=float))
