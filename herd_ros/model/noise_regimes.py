@@ -171,7 +171,7 @@ class RegimeNoise:
     def __init__(self, covariances: np.ndarray, transition: np.ndarray, rng=None):
         self.cov = np.asarray(covariances, dtype=float)
         self.transition = np.asarray(transition, dtype=float)
-        r, k = self.cov.shape[:2]
+        k = self.cov.shape[1]
         self.factor = noise_factors(self.cov)                              # (R, K, 2, 2)
         self.rng = np.random.default_rng(rng)
         self.state = np.array([self.rng.choice(k, p=stationary_distribution(t))

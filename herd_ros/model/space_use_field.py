@@ -68,13 +68,12 @@ class UtilizationDensity:
     bandwidth: float
 
 
-def reference_bandwidth(points: np.ndarray, effective_n: float | None = None) -> float:
-    """Worton's reference bandwidth h = σ n^(−1/6), σ = √((σx² + σy²)/2), for ``points``
-    (M, 2); ``effective_n`` replaces M (autocorrelated positions are fewer independent
-    ones)."""
+def reference_bandwidth(points: np.ndarray) -> float:
+    """Worton's reference bandwidth h = σ n^(−1/6), σ = √((σx² + σy²)/2), for the n
+    finite ``points`` (M, 2)."""
     pts = _finite_points(points)
     sigma = float(np.sqrt(0.5 * (pts[:, 0].var() + pts[:, 1].var())))
-    n = float(len(pts) if effective_n is None else effective_n)
+    n = float(len(pts))
     if not sigma > 0:
         raise HerdInputError('space-use field: the positions do not spread (σ = 0)')
     return sigma * max(n, 2.0) ** (-1.0 / 6.0)
