@@ -165,18 +165,19 @@ class HerdModel(VelocityMemory):
             terms = mag[..., None] * unit
         return np.where(np.isfinite(terms), terms, 0.0).sum(-2)
 
-    def environment(self, positions: np.ndarray) -> np.ndarray:
+    def environment(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
         """g_i(p_i) for every agent: positions (..., N, 2) -> (..., N, 2)."""
-        return agent_fields(positions, self._centers, self._sigma, self._coef)
+        return agent_fields(positions, self._centers, self._sigma, self._coef, compiled)
 
-    def drift(self, positions: np.ndarray) -> np.ndarray:
+    def drift(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
         """Σ_j f_ij(p) + g_i(p_i) for every agent (..., N, 2)."""
-        return self.interaction(positions) + self.environment(positions)
+        return self.interaction(positions) + self.environment(positions, compiled)
 
-    def next_velocity(self, velocity: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    def next_velocity(self, velocity: np.ndarray, positions: np.ndarray,
+                      compiled: bool | None = None) -> np.ndarray:
         """E[u^{τ+1}] = a_i u^τ + Σ f + g (eq. 2 without noise); shapes (..., N, 2). With a
         velocity memory κ < 1, ``velocity`` is the mean ū^τ (:mod:`velocity_memory`)."""
-        return self.damping[:, None] * velocity + self.drift(positions)
+        return self.damping[:, None] * velocity + self.drift(positions, compiled)
 
     def describe(self) -> str:
         """A readable summary (as ``print(model)`` gives)."""

@@ -140,16 +140,20 @@ def field_value(basis: RbfBasis, field_u: np.ndarray, field_v: np.ndarray,
 
 
 def agent_fields(positions: np.ndarray, centers: np.ndarray, sigma: np.ndarray,
-                 coef: np.ndarray) -> np.ndarray:
+                 coef: np.ndarray, compiled: bool | None = None) -> np.ndarray:
     """g_i(p_i) for every agent from packed bases: positions (..., N, 2), centres (N, K, 2),
     σ (N, K), coefficients (N, K, 2) (unused slots 0) -> (..., N, 2).
 
     Compiled; a centre farther than 12 σ from the point adds nothing (φ < e⁻⁷² of its peak,
     below double precision next to any nearer centre), so a fine basis over a wide region
-    costs what the centres near the agent cost. A NaN position gives NaN."""
+    costs what the centres near the agent cost. A NaN position gives NaN.
+
+    ``compiled``: None chooses by size (numpy for one snapshot, so a live node never compiles
+    at a tick); True forces the compiled loop (a simulation's many small steps)."""
     p = np.asarray(positions, dtype=float)
     flat = np.ascontiguousarray(p.reshape((-1,) + p.shape[-2:]))
-    if flat.shape[0] * centers.shape[0] * centers.shape[1] <= SMALL_FIELD_EVALUATION:
+    small = flat.shape[0] * centers.shape[0] * centers.shape[1] <= SMALL_FIELD_EVALUATION
+    if not compiled and (compiled is False or small):
         # one snapshot (a node's tick): numpy, no compilation in a live node
         d2 = ((flat[..., :, None, :] - centers) ** 2).sum(-1)
         phi = np.exp(-d2 / (2.0 * sigma ** 2)) / (sigma * SQRT_2PI)

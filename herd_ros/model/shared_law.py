@@ -344,16 +344,17 @@ class SharedLawModel(VelocityMemory):
             out[t0:t0 + chunk] = acc
         return out
 
-    def environment(self, positions: np.ndarray) -> np.ndarray:
+    def environment(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
         """g_i(p_i) for positions (..., N, 2)."""
-        return agent_fields(positions, self._centers, self._sigma, self._coef)
+        return agent_fields(positions, self._centers, self._sigma, self._coef, compiled)
 
-    def drift(self, positions):
-        return self.interaction(positions) + self.environment(positions)
+    def drift(self, positions, compiled: bool | None = None):
+        return self.interaction(positions) + self.environment(positions, compiled)
 
-    def next_velocity(self, velocity, positions):
+    def next_velocity(self, velocity, positions,
+                      compiled: bool | None = None):
         """E[u^{τ+1}] = a_i u^τ + Σ F e + g."""
-        return self.damping[:, None] * velocity + self.drift(positions)
+        return self.damping[:, None] * velocity + self.drift(positions, compiled)
 
     def describe(self) -> str:
         lines = [f'SharedLawModel({KIND}, {self.n_agents} agents, dt={self.dt:g} s, radius '

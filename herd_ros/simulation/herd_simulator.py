@@ -43,7 +43,7 @@ def simulate(model: HerdModel, steps: int, initial_positions: np.ndarray,
     kappa = getattr(model, 'velocity_memory', 1.0)
     mean_u = u                              # ū^0 = u^0 (velocity memory; ū = u at κ = 1)
     for tau in range(1, steps):
-        u_next = model.next_velocity(mean_u, p)
+        u_next = model.next_velocity(mean_u, p, compiled=True)
         if noise:
             u_next = u_next + source.draw()
         p = p + model.dt * u
