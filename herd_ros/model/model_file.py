@@ -39,8 +39,9 @@ AGENT_KEYS = ('damping', 'neighbors', 'theta1', 'theta2', 'rbf_centers_x', 'rbf_
               'rbf_sigma', 'field_u', 'field_v', 'noise_cov')
 
 
-class _FlowListDumper(yaml.SafeDumper):
-    """Block mappings, flow (inline) sequences: the layout of DESIGN.md."""
+class _FlowListDumper(getattr(yaml, 'CSafeDumper', yaml.SafeDumper)):
+    """Block mappings, flow (inline) sequences: the layout of DESIGN.md (libyaml's emitter
+    where PyYAML has it: a fine field's file is 10× faster to write)."""
 
 
 def _represent_list(dumper, data):
@@ -48,6 +49,8 @@ def _represent_list(dumper, data):
 
 
 _FlowListDumper.add_representer(list, _represent_list)
+# libyaml's safe loader where PyYAML has it (a fine field's file: 0.3 s instead of 3 s)
+_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
 
 
 def check_agent_id(agent: str) -> str:
@@ -301,7 +304,7 @@ def load_model_body(path) -> dict:
     if not path.is_file():
         raise HerdInputError(f'{path}: no such model file')
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = yaml.load(path.read_text(), Loader=_LOADER)
     except yaml.YAMLError as exc:
         raise HerdInputError(f'{path}: not valid YAML ({str(exc).splitlines()[0]})') from None
     if not isinstance(doc, dict):
