@@ -27,7 +27,7 @@ BAG = REPO / 'bags' / 'cows_3x1h'
 AGENTS = ['cow_1', 'cow_2', 'cow_3']
 ROBOTS = ['robot_1', 'robot_2', 'robot_3']
 DT = 20.0
-RATE = 40.0
+RATE = 60.0
 
 
 def _stop(procs):
