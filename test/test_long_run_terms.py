@@ -30,6 +30,13 @@ def damping_model(damping, q=0.01, dt=1.0, memory=1.0):
     return HerdModel(agents=agents, dt=dt, laws=laws, meta={'velocity_memory': memory})
 
 
+def field_at(basis, fu, fv, info, probe):
+    """The whole space-use field at ``probe`` (M, 2): the RBF part plus the home pull."""
+    phi = basis.features(probe)
+    return (np.column_stack([phi @ fu, phi @ fv])
+            - (probe - info['home_center']) @ np.asarray(info['home_gain']).T)
+
+
 def test_the_field_of_a_gaussian_cloud_is_the_closed_form_linear_pull():
     """Positions ~ N(μ, s²I): the kernel density with bandwidth h is N(μ, (s² + h²)I), so
     (S1) gives g(p) = −Δt/(2(1 − a)) Q (p − μ)/(s² + h²) exactly."""
@@ -40,8 +47,7 @@ def test_the_field_of_a_gaussian_cloud_is_the_closed_form_linear_pull():
     basis, fu, fv, info = space_use_field(pts, a, q, dt, bandwidth=h)
     assert info['bandwidth'] == h
     probe = mu + np.array([[0, 0], [3, 0], [0, -3], [-4, 4], [5, 2]], float)
-    phi = basis.features(probe)
-    got = np.column_stack([phi @ fu, phi @ fv])
+    got = field_at(basis, fu, fv, info, probe)
     want = -dt / (2 * (1 - a)) * (probe - mu) @ q.T / (s ** 2 + h ** 2)
     scale = np.abs(want).max()
     np.testing.assert_allclose(got, want, atol=0.05 * scale)
@@ -73,10 +79,36 @@ def test_the_space_use_field_pulls_back_from_far_outside():
     basis, fu, fv, info = space_use_field(pts, 0.5, 0.01 * np.eye(2), 1.0)
     xmin, xmax, ymin, ymax = info['bounds']
     probe = np.array([[xmax - 0.5, 5.0], [xmin + 0.5, 5.0], [5.0, ymax - 0.5], [5.0, ymin + 0.5]])
-    phi = basis.features(probe)
-    g = np.column_stack([phi @ fu, phi @ fv])
+    g = field_at(basis, fu, fv, info, probe)
     home = np.array([5.0, 5.0]) - probe
     assert ((g * home).sum(1) > 0).all(), g
+    # beyond the RBF basis (it vanishes there) the pull is the Ornstein-Uhlenbeck pull of
+    # the data's Gaussian, (S2): uniform on [0, 10]² has variance 100/12 per axis
+    far = np.array([[400.0, 5.0], [5.0, -300.0], [-250.0, 260.0]])
+    phi = basis.features(far)
+    assert np.abs(phi @ fu).max() < 1e-12
+    want = -1.0 / (2 * 0.5) * 0.01 * (far - 5.0) / (100 / 12)
+    np.testing.assert_allclose(field_at(basis, fu, fv, info, far), want,
+                               atol=0.03 * np.abs(want).max())
+
+
+def test_an_agent_far_from_its_range_comes_home_and_stays():
+    """A law with the space-use field, started 100 extents away and run with noise whose
+    step is a third of the range (a duty-cycled GPS herd): it returns to its range and its
+    long-run spread is the data's, not a random walk's (before the home pull (S2), the RBF
+    field vanished out there and simulated collared cows drifted 0.5-2 km off)."""
+    rng = np.random.default_rng(6)
+    pts = rng.uniform(0, 10, (20_000, 2))
+    model = damping_model([0.3], q=1.0)               # a step of ~1.4 m s.d. per axis
+    model = with_space_use_field(model, pts[:, None, :])
+    sim = simulate(model, 20_000, np.array([[1000.0, -800.0]]), seed=7)
+    d = np.linalg.norm(sim.positions[:, 0] - 5.0, axis=-1)
+    assert d[0] > 1200 and d[2000:].max() < 25.0, (d[2000:].max(), d[-1])
+    tail = sim.positions[2000:, 0]
+    np.testing.assert_allclose(tail.mean(0), pts.mean(0), atol=0.7)
+    # spread: the data's (100/12 per axis) plus the kernel's h², within 15 %
+    h = model.meta['space_use_bandwidth'][0]
+    np.testing.assert_allclose(tail.var(0), 100 / 12 + h ** 2, rtol=0.15)
 
 
 def test_space_use_field_refuses_an_unstable_law():
@@ -162,6 +194,30 @@ def test_regimes_round_trip_in_the_model_file_and_reach_the_robots(tmp_path):
     text = path.read_text().replace('noise_regime_transition: [', 'noise_regime_transition: [0.5, ')
     path.write_text(text)
     with pytest.raises(HerdInputError, match='noise_regime'):
+        load_model(path)
+
+
+def test_the_home_pull_round_trips_in_the_model_file_and_reaches_the_robots(tmp_path):
+    """Two agents with ranges 1 km apart: the file keeps their home pulls, and a robot on
+    agent a1, placed far from both, is pulled towards a1's range, not a0's."""
+    rng = np.random.default_rng(9)
+    pts = np.stack([rng.uniform(0, 10, (4000, 2)), 1000.0 + rng.uniform(0, 10, (4000, 2))], 1)
+    model = with_space_use_field(damping_model([0.5, 0.5], q=0.01), pts)
+    path = tmp_path / 'home.yaml'
+    save_model(model, path)
+    back = load_model(path)
+    np.testing.assert_allclose(back.meta['space_use_home'][0], model.meta['space_use_home'][0])
+    np.testing.assert_allclose(back.meta['space_use_home'][1], model.meta['space_use_home'][1])
+    far = np.array([[-3000.0, 500.0], [-3000.0, 500.0]])
+    np.testing.assert_allclose(back.environment(far), model.environment(far))
+    follower = HerdFollower(back, ['a1', 'a0'], noise=False)
+    g = follower.model.environment(far)
+    for k, home in enumerate(([1005.0, 1005.0], [5.0, 5.0])):
+        to_home = (np.array(home) - far[k]) / np.linalg.norm(np.array(home) - far[k])
+        assert g[k] @ to_home > 0.99 * np.linalg.norm(g[k]), (k, g[k], to_home)
+    text = path.read_text().replace('space_use_home_gain: [', 'space_use_home_gain: [0.5, ')
+    path.write_text(text)
+    with pytest.raises(HerdInputError, match='space_use_home'):
         load_model(path)
 
 

@@ -39,6 +39,7 @@ import numpy as np
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import AgentLaw, HerdModel, pairwise_geometry
 from herd_ros.model.noise_regimes import noise_for, subset_regimes
+from herd_ros.model.space_use_field import subset_home
 
 #: Herd-clock steps the hold steps the law through at once; a longer jump of the clock (sim
 #: time starting, a replay resumed) restarts the law from what the robots do.
@@ -64,9 +65,10 @@ def _robot_assignment(model, assignment, robots=None) -> tuple[list[str], list[i
 
 
 def _robot_meta(model, index) -> dict:
-    """The robots' model meta: each robot its animal's velocity memory and noise regimes."""
+    """The robots' model meta: each robot its animal's velocity memory, noise regimes and
+    space-use home pull."""
     return {'velocity_memory': model.velocity_memory[np.asarray(index)],
-            **subset_regimes(model.meta, index)}
+            **subset_regimes(model.meta, index), **subset_home(model.meta, index)}
 
 
 def robot_herd_model(model: HerdModel, assignment: list[str],

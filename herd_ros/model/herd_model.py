@@ -25,6 +25,7 @@ import numpy as np
 
 from herd_ros.errors import HerdInputError
 from herd_ros.model.rbf_field import RbfBasis, agent_fields
+from herd_ros.model.space_use_field import home_drift
 from herd_ros.model.velocity_memory import VelocityMemory
 
 KIND = 'schwager2007'
@@ -166,8 +167,10 @@ class HerdModel(VelocityMemory):
         return np.where(np.isfinite(terms), terms, 0.0).sum(-2)
 
     def environment(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
-        """g_i(p_i) for every agent: positions (..., N, 2) -> (..., N, 2)."""
-        return agent_fields(positions, self._centers, self._sigma, self._coef, compiled)
+        """g_i(p_i) for every agent: positions (..., N, 2) -> (..., N, 2); the RBF field plus,
+        in a long-run model, the space-use home pull (S2) of :mod:`space_use_field`."""
+        return (agent_fields(positions, self._centers, self._sigma, self._coef, compiled)
+                + home_drift(self.meta, positions))
 
     def drift(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
         """Σ_j f_ij(p) + g_i(p_i) for every agent (..., N, 2)."""

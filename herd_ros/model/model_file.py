@@ -116,6 +116,23 @@ def read_regimes(cov, trans, n_agents: int, where: str):
     return np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
 
 
+def read_home(center, gain, n_agents: int, where: str):
+    """(μ (N, 2), K (N, 2, 2)) of the space-use home pull from the flat model-file arrays."""
+    try:
+        c = np.asarray(center, dtype=float).ravel()
+        k = np.asarray(gain, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise HerdInputError(f'{where}.space_use_home_center/space_use_home_gain must be lists '
+                             f'of numbers') from None
+    if len(c) != 2 * n_agents or len(k) != 4 * n_agents:
+        raise HerdInputError(f'{where}: space_use_home_center needs N × 2 numbers and '
+                             f'space_use_home_gain N × 4 ({n_agents} agents)')
+    if not (np.isfinite(c).all() and np.isfinite(k).all()):
+        raise HerdInputError(f'{where}: space_use_home_center/space_use_home_gain must be '
+                             f'finite')
+    return c.reshape(n_agents, 2), k.reshape(n_agents, 2, 2)
+
+
 def add_model_meta(body: dict, model) -> None:
     """The model-wide keys kept in ``model.meta``:
 
@@ -128,9 +145,16 @@ def add_model_meta(body: dict, model) -> None:
       paper's model;
     * ``noise_regime_cov`` [N × K × (qxx, qxy, qyx, qyy)] and ``noise_regime_transition``
       [N × K × K] (agents order, row-major): the stop-and-go noise of
-      :mod:`herd_ros.model.noise_regimes`; absent = Gaussian noise N(0, Q_i).
+      :mod:`herd_ros.model.noise_regimes`; absent = Gaussian noise N(0, Q_i);
+    * ``space_use_home_center`` [N × (x, y)] and ``space_use_home_gain`` [N × (kxx, kxy,
+      kyx, kyy)]: the home pull −K_i (p − μ_i) of the space-use field, (S2) of
+      :mod:`herd_ros.model.space_use_field`, added to the RBF field; absent = none.
     """
     meta = model.meta or {}
+    home = meta.get('space_use_home')
+    if home is not None:
+        body['space_use_home_center'] = float_list(np.asarray(home[0]).ravel())
+        body['space_use_home_gain'] = float_list(np.asarray(home[1]).ravel())
     regimes = meta.get('noise_regimes')
     if regimes is not None:
         cov, trans = regimes
@@ -155,6 +179,13 @@ def read_model_meta(body: dict, n_agents: int, source: str) -> dict:
         meta['noise_regimes'] = read_regimes(body['noise_regime_cov'],
                                              body['noise_regime_transition'], n_agents,
                                              f'{source}: model')
+    if ('space_use_home_center' in body) != ('space_use_home_gain' in body):
+        raise HerdInputError(f'{source}: model.space_use_home_center and '
+                             f'model.space_use_home_gain go together')
+    if 'space_use_home_center' in body:
+        meta['space_use_home'] = read_home(body['space_use_home_center'],
+                                           body['space_use_home_gain'], n_agents,
+                                           f'{source}: model')
     if 'velocity_memory' in body:
         try:
             meta['velocity_memory'] = check_memories(body['velocity_memory'], n_agents)

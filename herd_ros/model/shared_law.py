@@ -81,6 +81,7 @@ from herd_ros.model.model_file import (add_model_meta, check_agent_id, dump_para
                                        float_list, load_model_body, read_model_meta,
                                        write_atomic)
 from herd_ros.model.rbf_field import RbfBasis, agent_fields
+from herd_ros.model.space_use_field import home_drift
 from herd_ros.model.velocity_memory import VelocityMemory
 
 KIND = 'schwager2007_shared'
@@ -345,8 +346,9 @@ class SharedLawModel(VelocityMemory):
         return out
 
     def environment(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
-        """g_i(p_i) for positions (..., N, 2)."""
-        return agent_fields(positions, self._centers, self._sigma, self._coef, compiled)
+        """g_i(p_i) for positions (..., N, 2): the RBF field (plus the space-use home pull)."""
+        return (agent_fields(positions, self._centers, self._sigma, self._coef, compiled)
+                + home_drift(self.meta, positions))
 
     def drift(self, positions, compiled: bool | None = None):
         return self.interaction(positions) + self.environment(positions, compiled)

@@ -32,6 +32,19 @@ centres per axis), so the field is an ordinary
 field of the model file and every consumer (predict, simulate, the controller) uses it
 unchanged. Unlike the fitted field, this one is a gradient (no circulation), and it is
 exact only without interactions (they change the stationary density).
+
+An RBF sum vanishes a few σ beyond its last centre, and an agent that gets there (a noisy
+step of a duty-cycled GPS herd, a high-noise regime) would never come back: a free
+simulation of five collared cows at 2-min fixes put them 0.5–2 km from their ranges. So
+(S1) is split in two: the pull of the Gaussian with the agent's own mean μ_i and
+covariance Σ_i of positions, exact and linear everywhere,
+
+    g_i^home(p) = −K_i (p − μ_i),   K_i = Δt / (2 (1 − a_i)) · Q_i Σ_i⁻¹              (S2)
+
+(the Ornstein–Uhlenbeck home range of Dunn & Gipson 1977, *Biometrics* 33:85), and the
+rest of (S1), (S1) − (S2), which is projected on the RBF basis. Inside the data the sum is
+(S1) as before; beyond the basis the agent is pulled home as the Gaussian pulls it. (S2)
+is the model file's ``space_use_home_center`` / ``space_use_home_gain``.
 """
 from __future__ import annotations
 
@@ -138,6 +151,47 @@ def langevin_drift(density: UtilizationDensity, damping: float, noise_cov: np.nd
     return dt / (2.0 * (1.0 - damping)) * density.log_gradient @ q.T
 
 
+def home_pull(points: np.ndarray, damping: float, noise_cov: np.ndarray,
+              dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(S2): the centre μ (2,) and gain K (2, 2) of the Gaussian home pull −K (p − μ) of an
+    agent with positions ``points`` (M, 2): K = Δt/(2(1 − a)) Q Σ⁻¹, Σ the covariance of
+    the finite positions (floored at 1e-6 of its largest eigenvalue: a herd along a fence
+    line keeps a finite pull across it)."""
+    pts = _finite_points(points)
+    if not damping < 1.0:
+        raise HerdInputError(f'space-use field needs damping < 1 (a stationary law), '
+                             f'got {damping:.4g}')
+    mu = pts.mean(axis=0)
+    sigma = np.cov(pts.T)
+    w, v = np.linalg.eigh(sigma)
+    if not w[-1] > 0:
+        raise HerdInputError('space-use field: the positions do not spread (σ = 0)')
+    w = np.maximum(w, 1e-6 * w[-1])
+    inv = (v / w) @ v.T
+    q = np.asarray(noise_cov, dtype=float).reshape(2, 2)
+    return mu, dt / (2.0 * (1.0 - damping)) * q @ inv
+
+
+def home_drift(meta: dict | None, positions: np.ndarray) -> np.ndarray | float:
+    """The home pull (S2) of every agent, from a model's ``meta['space_use_home']`` = (μ
+    (N, 2), K (N, 2, 2)): −K_i (p_i − μ_i) for positions (..., N, 2); 0.0 without it."""
+    home = (meta or {}).get('space_use_home')
+    if home is None:
+        return 0.0
+    mu, gain = home
+    return -np.einsum('nij,...nj->...ni', gain, np.asarray(positions, dtype=float) - mu)
+
+
+def subset_home(meta: dict | None, index) -> dict:
+    """``meta``'s home pull for the agents ``index`` (a robot fleet's animals), as a dict to
+    merge into the subset model's meta (empty without it)."""
+    home = (meta or {}).get('space_use_home')
+    if home is None:
+        return {}
+    idx = np.asarray(index)
+    return {'space_use_home': (np.asarray(home[0])[idx], np.asarray(home[1])[idx])}
+
+
 def project_on_basis(density: UtilizationDensity, drift: np.ndarray, basis: RbfBasis,
                      ridge: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
     """θu, θv minimising Σ_points w (g(bin) − Σ_k θ_k φ_k(bin))², w = π + mean π (where the
@@ -157,7 +211,8 @@ def project_on_basis(density: UtilizationDensity, drift: np.ndarray, basis: RbfB
 def space_use_field(positions: np.ndarray, damping: float, noise_cov: np.ndarray, dt: float,
                     bandwidth: float | None = None, bounds=None):
     """The field (S1) of one agent from its positions (T, 2) on the model clock (NaN where
-    missing): returns (basis, field_u, field_v, info) with info = bandwidth and bounds.
+    missing): returns (basis, field_u, field_v, info) with info = bandwidth, bounds and the
+    home pull (S2) (``home_center`` μ, ``home_gain`` K); the RBF part is (S1) − (S2).
 
     ``bounds`` (xmin, xmax, ymin, ymax) of the density and basis default to the visited
     region widened by three bandwidths or a quarter of its extent, whichever is more."""
@@ -171,7 +226,9 @@ def space_use_field(positions: np.ndarray, damping: float, noise_cov: np.ndarray
         lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
         bounds = (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
     density = utilization_density(pts, h, bounds)
-    drift = langevin_drift(density, damping, noise_cov, dt)
+    mu, gain = home_pull(pts, damping, noise_cov, dt)
+    # the RBF carries (S1) − (S2); the linear home pull (S2) is kept apart (exact everywhere)
+    drift = langevin_drift(density, damping, noise_cov, dt) + (density.points - mu) @ gain.T
     xmin, xmax, ymin, ymax = bounds
     spacing = max(h / CENTRES_PER_BANDWIDTH,
                   max(xmax - xmin, ymax - ymin) / MAX_CENTRES_PER_AXIS)
@@ -179,7 +236,8 @@ def space_use_field(positions: np.ndarray, damping: float, noise_cov: np.ndarray
                      max(int(round((ymax - ymin) / spacing)), 1), tuple(bounds))
     basis = RbfBasis.from_grid(grid)
     fu, fv = project_on_basis(density, drift, basis)
-    return basis, fu, fv, {'bandwidth': h, 'bounds': list(bounds)}
+    return basis, fu, fv, {'bandwidth': h, 'bounds': list(bounds), 'home_center': mu,
+                           'home_gain': gain}
 
 
 def _agent_field(model, i: int):
@@ -201,7 +259,8 @@ def _finite_points(points) -> np.ndarray:
 def with_space_use_field(model, positions: np.ndarray, bandwidth: float | None = None,
                          progress=None):
     """A copy of ``model`` (pairwise :class:`HerdModel` or shared law) whose every agent's
-    field g_i is the space-use field (S1) of its positions; ``positions`` (T, N, 2) in the
+    field g_i is the space-use field (S1) of its positions (the RBF field plus the home pull
+(S2) in ``meta['space_use_home']``); ``positions`` (T, N, 2) in the
     model's agents order, on its clock (runs may be stacked; NaN where missing). The
     field's standard errors are 0 (it is not a least-squares estimate); the rest of θ_i
     and its errors are kept. ``model.meta['space_use_bandwidth']`` records h per agent; an
@@ -210,14 +269,19 @@ def with_space_use_field(model, positions: np.ndarray, bandwidth: float | None =
     import dataclasses
 
     p = np.asarray(positions, dtype=float)
+    n = len(model.agents)
     fields, bandwidths, kept = [], [], {}
+    old_home = (model.meta or {}).get('space_use_home')
+    centers = np.zeros((n, 2)) if old_home is None else np.array(old_home[0], dtype=float)
+    gains = np.zeros((n, 2, 2)) if old_home is None else np.array(old_home[1], dtype=float)
     for i, a in enumerate(model.agents):
         try:
             basis, fu, fv, info = space_use_field(p[:, i], float(model.damping[i]),
                                                   model.noise_cov[i], model.dt, bandwidth)
             bandwidths.append(info['bandwidth'])
+            centers[i], gains[i] = info['home_center'], info['home_gain']
         except HerdInputError as err:                 # too few positions, an unstable law
-            basis, fu, fv = _agent_field(model, i)
+            basis, fu, fv = _agent_field(model, i)    # (and its home pull, if it had one)
             kept[a] = str(err)
             bandwidths.append(np.nan)
         fields.append((basis, fu, fv))
@@ -225,6 +289,8 @@ def with_space_use_field(model, positions: np.ndarray, bandwidth: float | None =
             progress(1)
     meta = {**(model.meta or {}), 'space_use_bandwidth': np.array(bandwidths),
             'space_use_kept_fitted': kept}
+    if np.any(gains):
+        meta['space_use_home'] = (centers, gains)
     if hasattr(model, 'laws'):
         laws = {}
         for a, (basis, fu, fv) in zip(model.agents, fields):

@@ -105,6 +105,9 @@ def field_figure(fit: HerdFit, runs, path: Path, n_arrows: int = 20):
         _, _, basis, field_u, field_v = agent_terms(model, a)
         phi = basis.features(pts)
         g = np.column_stack([phi @ field_u, phi @ field_v])
+        home = (model.meta or {}).get('space_use_home')      # a long-run model's home pull
+        if home is not None:
+            g = g - (pts - home[0][i]) @ np.asarray(home[1][i]).T
         for r in runs:
             p = aligned_positions(r, model.agents)[:, i]
             ax.plot(p[:, 0], p[:, 1], color='0.6', lw=0.4)
