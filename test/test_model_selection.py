@@ -197,7 +197,7 @@ def test_on_real_herds_the_long_run_terms_make_the_simulated_herd_move_like_the_
     noise regimes (`herd-ros fit --field space-use --noise regimes`; both from the training
     80 % only) simulated freely over the whole recording from its first complete step; herd
     means of mean and std of the distance to the others and of the speed within 30 % of the
-    animals' (measured: steers +22 / −1 / +17 / −8 %, baboons +1 / −5 / +12 / −11 %; without
+    animals' (measured: steers +22 / −1 / +17 / −8 %, baboons +2 / −4 / +13 / −9 %; without
     them the steers' robots spread 10× too far and move 84 % too fast)."""
     from herd_ros.model.noise_regimes import with_noise_regimes
     from herd_ros.model.space_use_field import with_space_use_field
