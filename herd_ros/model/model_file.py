@@ -99,14 +99,17 @@ def model_to_dict(model: HerdModel) -> dict:
     return body
 
 
+def _number_lists(first, second, keys: str, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """Two model-file lists as flat float arrays, or one clear error naming ``keys``."""
+    try:
+        return (np.asarray(first, dtype=float).ravel(), np.asarray(second, dtype=float).ravel())
+    except (TypeError, ValueError):
+        raise HerdInputError(f'{where}.{keys} must be lists of numbers') from None
+
+
 def read_regimes(cov, trans, n_agents: int, where: str):
     """(covariances (N, K, 2, 2), transition (N, K, K)) from the flat model-file arrays."""
-    try:
-        c = np.asarray(cov, dtype=float).ravel()
-        t = np.asarray(trans, dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise HerdInputError(f'{where}.noise_regime_cov/noise_regime_transition must be lists '
-                             f'of numbers') from None
+    c, t = _number_lists(cov, trans, 'noise_regime_cov/noise_regime_transition', where)
     k = len(c) // (4 * max(n_agents, 1))
     if k < 1 or len(c) != 4 * k * n_agents or len(t) != k * k * n_agents:
         raise HerdInputError(f'{where}: noise_regime_cov needs N × K × 4 numbers and '
@@ -118,12 +121,7 @@ def read_regimes(cov, trans, n_agents: int, where: str):
 
 def read_home(center, gain, n_agents: int, where: str):
     """(μ (N, 2), K (N, 2, 2)) of the space-use home pull from the flat model-file arrays."""
-    try:
-        c = np.asarray(center, dtype=float).ravel()
-        k = np.asarray(gain, dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise HerdInputError(f'{where}.space_use_home_center/space_use_home_gain must be lists '
-                             f'of numbers') from None
+    c, k = _number_lists(center, gain, 'space_use_home_center/space_use_home_gain', where)
     if len(c) != 2 * n_agents or len(k) != 4 * n_agents:
         raise HerdInputError(f'{where}: space_use_home_center needs N × 2 numbers and '
                              f'space_use_home_gain N × 4 ({n_agents} agents)')
@@ -172,20 +170,13 @@ def add_model_meta(body: dict, model) -> None:
 def read_model_meta(body: dict, n_agents: int, source: str) -> dict:
     """The ``meta`` entries for :func:`add_model_meta`'s keys, checked."""
     meta = {}
-    if ('noise_regime_cov' in body) != ('noise_regime_transition' in body):
-        raise HerdInputError(f'{source}: model.noise_regime_cov and '
-                             f'model.noise_regime_transition go together')
-    if 'noise_regime_cov' in body:
-        meta['noise_regimes'] = read_regimes(body['noise_regime_cov'],
-                                             body['noise_regime_transition'], n_agents,
-                                             f'{source}: model')
-    if ('space_use_home_center' in body) != ('space_use_home_gain' in body):
-        raise HerdInputError(f'{source}: model.space_use_home_center and '
-                             f'model.space_use_home_gain go together')
-    if 'space_use_home_center' in body:
-        meta['space_use_home'] = read_home(body['space_use_home_center'],
-                                           body['space_use_home_gain'], n_agents,
-                                           f'{source}: model')
+    for name, (first, second), read in (
+            ('noise_regimes', ('noise_regime_cov', 'noise_regime_transition'), read_regimes),
+            ('space_use_home', ('space_use_home_center', 'space_use_home_gain'), read_home)):
+        if (first in body) != (second in body):
+            raise HerdInputError(f'{source}: model.{first} and model.{second} go together')
+        if first in body:
+            meta[name] = read(body[first], body[second], n_agents, f'{source}: model')
     if 'velocity_memory' in body:
         try:
             meta['velocity_memory'] = check_memories(body['velocity_memory'], n_agents)
