@@ -7,7 +7,7 @@ from herd_ros.cli.common import progress
 from herd_ros.data_sources import load_runs
 from herd_ros.errors import HerdInputError
 from herd_ros.model.any_model import load_any_model
-from herd_ros.simulation.herd_simulator import simulate
+from herd_ros.simulation.herd_simulator import first_pairs, simulate
 from herd_ros.simulation.statistics import herd_statistics
 from herd_ros.trajectory import write_trajectory_csv
 
@@ -45,10 +45,9 @@ def default_initial_positions(model, seed=0):
 def first_state(p: np.ndarray, dt: float, source) -> tuple[np.ndarray, np.ndarray]:
     """p^0 and u^0 of every agent from the first two consecutive steps where it is present
     (collars start late: the first row of a real recording has agents missing)."""
-    both = np.isfinite(p[:-1]).all(-1) & np.isfinite(p[1:]).all(-1)      # (T−1, N)
-    if not both.any(axis=0).all():
+    k, found = first_pairs(p)
+    if not found.all():
         raise HerdInputError(f'{source}: an agent is never present at two consecutive steps')
-    k = np.argmax(both, axis=0)
     idx = np.arange(p.shape[1])
     return p[k, idx], (p[k + 1, idx] - p[k, idx]) / dt
 

@@ -131,6 +131,12 @@ def read_home(center, gain, n_agents: int, where: str):
     return c.reshape(n_agents, 2), k.reshape(n_agents, 2, 2)
 
 
+#: Model-level meta entries stored as two flat lists: (meta key, file keys, reader).
+PAIRED_META = (
+    ('noise_regimes', ('noise_regime_cov', 'noise_regime_transition'), read_regimes),
+    ('space_use_home', ('space_use_home_center', 'space_use_home_gain'), read_home))
+
+
 def add_model_meta(body: dict, model) -> None:
     """The model-wide keys kept in ``model.meta``:
 
@@ -149,15 +155,10 @@ def add_model_meta(body: dict, model) -> None:
       :mod:`herd_ros.model.space_use_field`, added to the RBF field; absent = none.
     """
     meta = model.meta or {}
-    home = meta.get('space_use_home')
-    if home is not None:
-        body['space_use_home_center'] = float_list(np.asarray(home[0]).ravel())
-        body['space_use_home_gain'] = float_list(np.asarray(home[1]).ravel())
-    regimes = meta.get('noise_regimes')
-    if regimes is not None:
-        cov, trans = regimes
-        body['noise_regime_cov'] = float_list(np.asarray(cov).ravel())
-        body['noise_regime_transition'] = float_list(np.asarray(trans).ravel())
+    for name, keys, _ in PAIRED_META:
+        if meta.get(name) is not None:
+            for key, values in zip(keys, meta[name]):
+                body[key] = float_list(np.asarray(values).ravel())
     scale = meta.get('prediction_scale')
     if scale is not None:
         body['prediction_scale'] = float_list(scale)
@@ -170,9 +171,7 @@ def add_model_meta(body: dict, model) -> None:
 def read_model_meta(body: dict, n_agents: int, source: str) -> dict:
     """The ``meta`` entries for :func:`add_model_meta`'s keys, checked."""
     meta = {}
-    for name, (first, second), read in (
-            ('noise_regimes', ('noise_regime_cov', 'noise_regime_transition'), read_regimes),
-            ('space_use_home', ('space_use_home_center', 'space_use_home_gain'), read_home)):
+    for name, (first, second), read in PAIRED_META:
         if (first in body) != (second in body):
             raise HerdInputError(f'{source}: model.{first} and model.{second} go together')
         if first in body:

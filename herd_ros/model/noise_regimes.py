@@ -20,8 +20,8 @@ emission: the chain runs on through it. K ∈ {1, 2, 3} is chosen by BIC over th
 herd (one K for all agents). The stationary mean Σ_k π_k Q_ik stays the model's Q_i, so
 everything that uses only Q_i (prediction covariances, the space-use field) is unchanged.
 
-Model file (per agent, flat arrays as ROS parameters need them): ``noise_regime_cov``
-[K × (qxx, qxy, qyx, qyy)] and ``noise_regime_transition`` [K × K, row-major].
+Model file (model-level flat arrays, as ROS parameters need them): ``noise_regime_cov``
+[N × K × (qxx, qxy, qyx, qyy)] and ``noise_regime_transition`` [N × K × K, row-major].
 """
 from __future__ import annotations
 
@@ -163,7 +163,7 @@ class RegimeNoise:
     """Draws w of R agents whose noise switches regime: covariances (R, K, 2, 2),
     transition (R, K, K); the state starts from the stationary distribution.
 
-    ``draw(rng, fraction)`` advances the chains by a fraction β ∈ (0, 1] of a model step
+    ``draw(fraction)`` advances the chains by a fraction β ∈ (0, 1] of a model step
     (transition (1 − β) I + β Π, which keeps the mean dwell time in model steps) and
     returns √β L_z ξ, the noise of that fraction (L_z L_zᵀ = Q_z).
     """

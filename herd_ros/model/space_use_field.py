@@ -144,9 +144,7 @@ def langevin_drift(density: UtilizationDensity, damping: float, noise_cov: np.nd
                    dt: float) -> np.ndarray:
     """(S1) at the density's points: g(p) = Δt/(2(1 − a)) Q ∇log π(p), (E, 2) in m/s per
     step."""
-    if not damping < 1.0:
-        raise HerdInputError(f'space-use field needs damping < 1 (a stationary law), '
-                             f'got {damping:.4g}')
+    _check_stationary(damping)
     q = np.asarray(noise_cov, dtype=float).reshape(2, 2)
     return dt / (2.0 * (1.0 - damping)) * density.log_gradient @ q.T
 
@@ -158,9 +156,7 @@ def home_pull(points: np.ndarray, damping: float, noise_cov: np.ndarray,
     the finite positions (floored at 1e-6 of its largest eigenvalue: a herd along a fence
     line keeps a finite pull across it)."""
     pts = _finite_points(points)
-    if not damping < 1.0:
-        raise HerdInputError(f'space-use field needs damping < 1 (a stationary law), '
-                             f'got {damping:.4g}')
+    _check_stationary(damping)
     mu = pts.mean(axis=0)
     sigma = np.cov(pts.T)
     w, v = np.linalg.eigh(sigma)
@@ -246,6 +242,12 @@ def _agent_field(model, i: int):
         law = model.laws[model.agents[i]]
         return law.basis, law.field_u, law.field_v
     return model.bases[i], model.field_u[i], model.field_v[i]
+
+
+def _check_stationary(damping: float) -> None:
+    if not damping < 1.0:
+        raise HerdInputError(f'space-use field needs damping < 1 (a stationary law), '
+                             f'got {damping:.4g}')
 
 
 def _finite_points(points) -> np.ndarray:

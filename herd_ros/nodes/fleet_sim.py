@@ -60,8 +60,6 @@ DEFAULTS = {
 }
 
 
-
-
 #: Periods of a clock jump fleet_sim integrates through; a longer jump restarts its grid.
 MAX_CATCH_UP = 100
 

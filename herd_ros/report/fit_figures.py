@@ -11,6 +11,7 @@ import numpy as np  # noqa: E402
 
 from herd_ros.estimation.herd_fit import HerdFit, aligned_positions  # noqa: E402
 from herd_ros.estimation.validation import agent_terms  # noqa: E402
+from herd_ros.model.space_use_field import home_drift, subset_home  # noqa: E402
 from herd_ros.simulation.statistics import STATISTICS  # noqa: E402
 
 
@@ -105,9 +106,8 @@ def field_figure(fit: HerdFit, runs, path: Path, n_arrows: int = 20):
         _, _, basis, field_u, field_v = agent_terms(model, a)
         phi = basis.features(pts)
         g = np.column_stack([phi @ field_u, phi @ field_v])
-        home = (model.meta or {}).get('space_use_home')      # a long-run model's home pull
-        if home is not None:
-            g = g - (pts - home[0][i]) @ np.asarray(home[1][i]).T
+        pull = home_drift(subset_home(model.meta, [i]), pts[:, None, :])  # long-run; else 0
+        g = g + (pull[:, 0] if np.ndim(pull) else pull)
         for r in runs:
             p = aligned_positions(r, model.agents)[:, i]
             ax.plot(p[:, 0], p[:, 1], color='0.6', lw=0.4)

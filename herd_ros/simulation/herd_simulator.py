@@ -56,6 +56,14 @@ def simulate(model: HerdModel, steps: int, initial_positions: np.ndarray,
     return HerdTrajectory(times, list(model.agents), out)
 
 
+def first_pairs(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each agent of ``positions`` (T, N, 2), the first step k where it is present at k
+    and k + 1 (N,), and whether it has such a step at all (N,)."""
+    p = np.asarray(positions, dtype=float)
+    both = np.isfinite(p[:-1]).all(-1) & np.isfinite(p[1:]).all(-1)     # (T−1, N)
+    return np.argmax(both, axis=0), both.any(axis=0)
+
+
 def simulate_from(model: HerdModel, run: HerdTrajectory, steps: int | None = None, seed=None,
                   noise: bool = True) -> HerdTrajectory:
     """Simulate from the start of ``run``: from its first two consecutive steps where every
@@ -63,15 +71,13 @@ def simulate_from(model: HerdModel, run: HerdTrajectory, steps: int | None = Non
     with no such pair (collars that never overlap) starts each agent from its own first two
     consecutive positions."""
     p = np.asarray(run.positions, dtype=float)
-    present = np.isfinite(p).all(-1)                                     # (T, N)
-    pair = present[:-1] & present[1:]
-    complete = pair.all(-1)
+    complete = (np.isfinite(p[:-1]) & np.isfinite(p[1:])).all(-1).all(-1)
     if complete.any():
         k0 = int(np.argmax(complete))
         p0, p1 = p[k0], p[k0 + 1]
     else:
         k0 = 0
-        first = np.argmax(pair, axis=0)                                  # (N,)
+        first, _ = first_pairs(p)
         idx = np.arange(p.shape[1])
         p0, p1 = p[first, idx], p[first + 1, idx]
     steps = run.n_steps - k0 if steps is None else steps
