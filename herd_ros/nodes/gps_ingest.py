@@ -3,9 +3,12 @@
 Subscribes ``/herd/<agent>/fix`` (sensor_msgs/NavSatFix, sensor-data QoS: best effort,
 volatile, keep last ``fix_queue_depth`` — 50 rather than 5, so a bag replayed faster than
 real time or a busy moment of the node does not drop fixes) for every id of the ``agents``
-parameter. Publishes
+parameter — or, with ``fix_topic`` set, one NavSatFix topic for every collar (a gateway's),
+the collar named by ``header.frame_id`` (``<agent>``, ``<agent>_gps`` or ``<agent>/gps``;
+keep last ``fix_queue_depth`` × collars). Publishes
 
-* ``/herd/<agent>/odom`` (nav_msgs/Odometry) after every accepted fix: frame ``frame_id``,
+* ``/herd/<agent>/odom`` (or every collar on ``odom_topic``, when set) (nav_msgs/Odometry)
+  after every accepted fix: frame ``frame_id``,
   child ``<agent>``, stamped with the fix time; pose = filtered ENU position, twist = filtered
   ENU velocity (the child frame is axis-aligned with ``map``: orientation is the identity,
   since a collar measures no heading), both with their covariance from the filter. Unobserved
@@ -20,9 +23,15 @@ parameter. Publishes
   was rejected since the last report or the collar is stale, OK otherwise — and one for the
   node (datum, herd time, ticks published, message errors).
 
+**Scale.** One topic per collar costs DDS endpoints and discovery that grow faster than the
+herd (building 20 000 endpoints in one process took 177 s, discovery of them 11 minutes);
+the shared topics ``fix_topic`` / ``odom_topic`` serve 10 000 collars at 1 Hz. Messages
+cross the edge serialized (``raw=True`` subscriptions, bytes published) and are converted a
+batch at a time by :mod:`herd_ros.io.cdr`.
+
 The numerics are the offline path's (:mod:`herd_ros.ingest.pipeline`): the subscription
-callbacks only convert each NavSatFix to numbers at the edge; every ``batch_period_s`` (5 ms
-of wall time) the fixes received are handed at once to
+callbacks only queue each serialized NavSatFix; every ``batch_period_s`` (5 ms
+of wall time) the fixes received are decoded and handed at once to
 :func:`~herd_ros.ingest.geodesy.geodetic_to_enu` (NaN altitude -> the datum's), the compiled
 :class:`~herd_ros.ingest.collar_bank.CollarBank` (the filter of every collar in arrays;
 rejection reasons ``no_fix``, ``nan``, ``time``, ``speed``, ``gate``, ``unconfirmed``) and the
@@ -44,8 +53,9 @@ a stamp more than ``max_stamp_ahead_s`` s ahead of the wall clock is rejected (r
 ``max_clock_jump_s`` s restarts the herd clock at the new time instead of publishing every
 tick in between (logged, counted).
 
-Bad messages never stop the node: any exception while handling one is caught, counted
-(``message_errors``) and reported as a WARN.
+Bad messages never stop the node: one that does not decode, or any exception while handling
+one, is caught, counted (``message_errors``) and reported as a WARN; a fix on ``fix_topic``
+whose frame names no collar is counted (``unknown_collar_fixes``, the last frame named).
 """
 from __future__ import annotations
 
@@ -55,7 +65,7 @@ import time
 import numpy as np
 import pandas as pd
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import Pose, PoseArray
+from geometry_msgs.msg import PoseArray
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
@@ -65,19 +75,22 @@ from herd_ros.errors import HerdInputError
 from herd_ros.ingest.collar_bank import OUTCOMES, CollarBank
 from herd_ros.ingest.collar_filter import COUNTERS, STATUS_NO_FIX, FilterParams
 from herd_ros.ingest.geodesy import geodetic_to_enu
-from herd_ros.ingest.herd_clock import BatchHerdClock, HerdSnapshot
+from herd_ros.ingest.herd_clock import BatchHerdClock
 from herd_ros.ingest.pipeline import choose_datum
+from herd_ros.io.cdr import (NavSatFixes, OdometryEncoder, concat_fixes, decode_navsatfixes,
+                             encode_pose_array, take_fixes)
 from herd_ros.model.model_file import check_agent_id
 from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
                                        declare_parameters, describe_remaining_parameters,
                                        diagnostic_array, diagnostic_status, exit_process,
                                        number_problem, refresh_status, run_node,
-                                       seconds_to_stamp,
-                                       wall_timer,
-                                       stamp_to_seconds)
+                                       wall_timer)
 
 #: Variance (m², rad², ...) of the Odometry entries a GPS collar does not observe.
 UNOBSERVED_VARIANCE = 1e6
+
+#: history depth of each /herd/<agent>/odom publisher (of odom_topic: this times the collars)
+ODOM_DEPTH = 10
 
 EXECUTORS = ('events', 'single_threaded')
 
@@ -125,8 +138,14 @@ DEFAULTS = {
     'diagnostics_max_collars': Param(1000, 'collar statuses per diagnostics period; more '
                                            'collars are reported in turn', range=(1, 10**7)),
     'executor': Param('events', 'rclpy executor', choices=EXECUTORS),
-    'fix_queue_depth': Param(50, 'history depth of each /herd/<agent>/fix subscription',
+    'fix_queue_depth': Param(50, 'history depth of each /herd/<agent>/fix subscription '
+                                 '(of fix_topic: this times the collars)',
                              range=(1, 100000)),
+    'fix_topic': Param('', 'one NavSatFix topic for every collar, the collar named by '
+                           'header.frame_id (<agent>, <agent>_gps or <agent>/gps); empty = '
+                           '/herd/<agent>/fix per collar'),
+    'odom_topic': Param('', 'one Odometry topic for every collar (child_frame_id = the '
+                            'collar); empty = /herd/<agent>/odom per collar'),
 }
 
 #: The node parameters that are :class:`FilterParams` fields (same names).
@@ -190,9 +209,27 @@ class GpsIngestConfig:
         depth = p['fix_queue_depth']
         if isinstance(depth, bool) or not isinstance(depth, int) or depth < 1:
             raise ParameterError(f'fix_queue_depth must be an integer ≥ 1, got {depth!r}')
+        self.fix_topic = _topic(p, 'fix_topic')
+        self.odom_topic = _topic(p, 'odom_topic')
+        if self.fix_topic:
+            depth = min(depth * len(self.agents), 10**7)
         self.fix_qos = QoSProfile(depth=depth, reliability=qos_profile_sensor_data.reliability,
                                   durability=qos_profile_sensor_data.durability,
                                   history=qos_profile_sensor_data.history)
+        self.odom_depth = ODOM_DEPTH * (len(self.agents) if self.odom_topic else 1)
+
+
+def _topic(p: dict, name: str) -> str:
+    """'' or a valid absolute or relative topic name."""
+    topic = str(p[name]).strip()
+    if topic:
+        from rclpy.validate_full_topic_name import validate_full_topic_name
+        try:
+            validate_full_topic_name(topic if topic.startswith('/') else '/' + topic)
+        except Exception as exc:    # rclpy's InvalidTopicNameException
+            raise ParameterError(f'{name} must be empty or a topic name, got {topic!r} '
+                                 f'({str(exc).splitlines()[0]})') from None
+    return topic
 
 
 def _number(p: dict, name: str) -> float:
@@ -203,41 +240,14 @@ def _number(p: dict, name: str) -> float:
 
 
 # -- message conversion at the edge -----------------------------------------------------------
-def fix_is_valid(status: int, lat: float, lon: float) -> bool:
-    """A fix that can be a position (and the datum): not NO_FIX, finite lat/lon."""
-    return int(status) != STATUS_NO_FIX and math.isfinite(lat) and math.isfinite(lon)
-
-
-class OdometryMessages:
-    """One reusable Odometry per collar, frames and constant entries set once; :meth:`fill`
-    writes a state into it: ENU pose and twist with their covariance, the entries a collar
-    does not observe at :data:`UNOBSERVED_VARIANCE` (10 µs instead of 60 µs for a new
-    message, measured: 1 % of a core at 1 000 fixes/s instead of 6 %)."""
-
-    def __init__(self, agents, frame_id: str):
-        self._msgs = []
-        for agent in agents:
-            msg = Odometry()
-            msg.header.frame_id = frame_id
-            msg.child_frame_id = agent
-            msg.pose.pose.orientation.w = 1.0
-            self._msgs.append(msg)
-        self._base = np.diag(np.full(6, UNOBSERVED_VARIANCE)).reshape(36)
-
-    def fill(self, i: int, t: float, x, P) -> Odometry:
-        msg = self._msgs[i]
-        msg.header.stamp = seconds_to_stamp(t)
-        position = msg.pose.pose.position
-        position.x, position.y = float(x[0]), float(x[1])
-        velocity = msg.twist.twist.linear
-        velocity.x, velocity.y = float(x[2]), float(x[3])
-        c = self._base.copy()
-        c[[0, 1, 6, 7]] = P[:2, :2].ravel()
-        msg.pose.covariance = c
-        c = self._base.copy()
-        c[[0, 1, 6, 7]] = P[2:, 2:].ravel()
-        msg.twist.covariance = c
-        return msg
+def collar_frames(agents) -> dict:
+    """header.frame_id -> collar index on a shared fix topic: ``<agent>`` and the sensor
+    frames ``<agent>_gps`` (what ``herd-ros import`` writes) and ``<agent>/gps``."""
+    frames = {}
+    for i, agent in enumerate(agents):
+        for frame in (agent, f'{agent}_gps', f'{agent}/gps'):
+            frames.setdefault(frame, i)
+    return frames
 
 
 #: what a rejection means, for diagnostics and logs
@@ -252,24 +262,6 @@ REJECTION_TEXT = {
 }
 
 
-def pose_array_from_snapshot(snap: HerdSnapshot, frame_id: str) -> PoseArray:
-    """PoseArray of a herd snapshot, stamped with its tick (NaN for uninitialised agents)."""
-    msg = PoseArray()
-    msg.header.stamp = seconds_to_stamp(snap.time)
-    msg.header.frame_id = frame_id
-    poses = []
-    for (px, py), init in zip(snap.positions.tolist(), snap.initialised.tolist()):
-        pose = Pose()
-        pose.position.x = px
-        pose.position.y = py
-        if not init:
-            pose.position.z = math.nan
-        pose.orientation.w = 1.0
-        poses.append(pose)
-    msg.poses = poses
-    return msg
-
-
 class GpsIngest(Node):
     def __init__(self):
         super().__init__('gps_ingest')
@@ -278,32 +270,44 @@ class GpsIngest(Node):
         BatchHerdClock.warm_up()
         self.bank = CollarBank(len(cfg.agents), cfg.filter_params)
         self.clock = self._new_clock()
-        self._index = {a: i for i, a in enumerate(cfg.agents)}
-        self._inbox: list[tuple] = []               # fixes waiting for the next batch
+        self._frames = collar_frames(cfg.agents)      # frame_id -> collar (fix_topic)
+        self._inbox: list[tuple] = []     # (collar index, -1 on fix_topic; serialized fix)
         self._diagnostics_job = None
         self._diagnostics_next = 0                 # first collar of the next report
         self._statuses = [None] * len(cfg.agents)  # each collar's status, reused
-        self._odom = OdometryMessages(cfg.agents, cfg.frame_id)
+        self._odom = OdometryEncoder(cfg.agents, cfg.frame_id, UNOBSERVED_VARIANCE)
         self.datum = cfg.datum
-        self._pending: list[tuple] = []            # fixes held until the datum is chosen
-        self._pending_valid: dict[str, float] = {}  # agent -> first valid stamp held
+        self._pending: list[tuple] = []   # (collars, NavSatFixes) held until the datum is chosen
+        self._pending_valid: dict[int, float] = {}  # collar -> first valid stamp held
         self._pending_latest = -math.inf            # latest stamp held
         self.rejected_future = dict.fromkeys(cfg.agents, 0)
         self.last_rejection = dict.fromkeys(cfg.agents, '')
         self._reported = {a: dict.fromkeys(COUNTERS, 0) for a in cfg.agents}
         self.message_errors = 0
+        self.unknown_collar_fixes = 0
+        self.last_unknown_frame = ''
         self.clock_restarts = 0
         self.ticks_published = 0
         self._errors_reported = 0
-        self.odom_pubs = {a: self.create_publisher(Odometry, f'/herd/{a}/odom', 10)
-                          for a in cfg.agents}
-        self._odom_publish = [self.odom_pubs[a].publish for a in cfg.agents]
+        if cfg.odom_topic:
+            shared = self.create_publisher(Odometry, cfg.odom_topic, cfg.odom_depth).publish
+            self._odom_publish = [shared] * len(cfg.agents)
+        else:
+            self._odom_publish = [self.create_publisher(Odometry, f'/herd/{a}/odom',
+                                                        cfg.odom_depth).publish
+                                  for a in cfg.agents]
         self.poses_pub = self.create_publisher(PoseArray, '/herd/poses',
                                                QoSProfile(depth=100))
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        for a in cfg.agents:
-            self.create_subscription(NavSatFix, f'/herd/{a}/fix',
-                                     lambda msg, a=a: self.on_fix(a, msg), cfg.fix_qos)
+        # messages stay serialized at the edge; herd_ros.io.cdr converts them in batches
+        if cfg.fix_topic:
+            self.create_subscription(NavSatFix, cfg.fix_topic, lambda data: self.on_fix(-1, data),
+                                     cfg.fix_qos, raw=True)
+        else:
+            for i, a in enumerate(cfg.agents):
+                self.create_subscription(NavSatFix, f'/herd/{a}/fix',
+                                         lambda data, i=i: self.on_fix(i, data), cfg.fix_qos,
+                                         raw=True)
         wall_timer(self, cfg.diagnostics_period_s, self.publish_diagnostics)
         if cfg.batch_period_s > 0:
             wall_timer(self, cfg.batch_period_s, self.drain)
@@ -314,7 +318,9 @@ class GpsIngest(Node):
             self._log_datum('parameter')
         self.get_logger().info(f'{len(cfg.agents)} collars, herd clock dt {cfg.dt:g} s, '
                                f'datum {"from parameter" if self.datum else "first valid fix"}'
-                               f', executor {cfg.executor}')
+                               f', fixes on {cfg.fix_topic or "/herd/<agent>/fix"}, odometry '
+                               f'on {cfg.odom_topic or "/herd/<agent>/odom"}, executor '
+                               f'{cfg.executor}')
 
     # -- live parameters (accel_std, max_speed, cruise_speed, sprint_s) --------------------
     def _live_filter_params(self, name, value):
@@ -338,27 +344,12 @@ class GpsIngest(Node):
         self.clock.accel_std = self.cfg.filter_params.accel_std
 
     # -- one fix ------------------------------------------------------------------------
-    def on_fix(self, agent: str, msg: NavSatFix):
-        try:
-            fix = (agent, stamp_to_seconds(msg.header.stamp), float(msg.latitude),
-                   float(msg.longitude), float(msg.altitude), int(msg.status.status),
-                   np.asarray(msg.position_covariance, dtype=float).copy(),
-                   int(msg.position_covariance_type))
-            if fix[1] > time.time() + self.cfg.max_stamp_ahead_s:
-                self.rejected_future[agent] += 1
-                self.last_rejection[agent] = (f'future: stamp {fix[1]:.3f} is more than '
-                                              f'max_stamp_ahead_s ahead of the wall clock')
-                return
-            if self.datum is None:
-                self._hold(fix)
-            else:
-                self._inbox.append(fix)
-                if self.cfg.batch_period_s == 0 or len(self._inbox) >= 100_000:
-                    self.drain()
-        except Exception as exc:   # a bad message must never stop the node
-            self.message_errors += 1
-            self.get_logger().warn(f'{agent}: fix dropped ({type(exc).__name__}: {exc})',
-                                   throttle_duration_sec=5.0)
+    def on_fix(self, collar: int, data: bytes):
+        """A serialized NavSatFix of collar ``collar`` (-1: named by its frame, fix_topic):
+        queued for the next batch (:meth:`drain`)."""
+        self._inbox.append((collar, data))
+        if self.cfg.batch_period_s == 0 or len(self._inbox) >= 100_000:
+            self.drain()
 
     def on_shutdown(self):
         """Stop signal: filter and publish the fixes still waiting for their batch."""
@@ -370,41 +361,81 @@ class GpsIngest(Node):
                               p.velocity_tau)
 
     def drain(self):
-        """Filter the fixes received since the last batch (:meth:`process_batch`); then a
-        step of the diagnostics being built, if any."""
+        """Decode and filter the fixes received since the last batch (:meth:`process_batch`);
+        then a step of the diagnostics being built, if any."""
         if not self._inbox:
             self._advance_diagnostics()
             return
-        fixes, self._inbox = self._inbox, []
+        inbox, self._inbox = self._inbox, []
         try:
-            self.process_batch(fixes)
+            collars, fixes = self._decode(inbox)
+            if self.datum is None and len(collars):
+                collars, fixes = self._hold(collars, fixes)
+            if len(collars):
+                self.process_batch(collars, fixes)
         except Exception as exc:   # a bad batch must never stop the node
-            self.message_errors += len(fixes)
-            self.get_logger().warn(f'{len(fixes)} fixes dropped ({type(exc).__name__}: '
+            self.message_errors += len(inbox)
+            self.get_logger().warn(f'{len(inbox)} fixes dropped ({type(exc).__name__}: '
                                    f'{exc})', throttle_duration_sec=5.0)
         self._advance_diagnostics()
 
-    def process_batch(self, fixes: list[tuple]):
-        """Filter fixes (in arrival order) with the collar bank, publish the odometry of the
-        accepted ones and the herd snapshots they complete."""
-        m = len(fixes)
+    def _decode(self, inbox) -> tuple[np.ndarray, NavSatFixes]:
+        """Serialized fixes -> (collar indices, decoded fixes) of those that decode, name a
+        collar and are not stamped in the future (each of the others counted)."""
+        fixes, bad = decode_navsatfixes([data for _, data in inbox])
+        if bad:
+            self.message_errors += len(bad)
+            self.get_logger().warn(f'{len(bad)} fixes dropped: not a NavSatFix ({bad[0][1]})',
+                                   throttle_duration_sec=5.0)
+            skip = {k for k, _ in bad}
+            inbox = [entry for k, entry in enumerate(inbox) if k not in skip]
+        collars = np.fromiter((c for c, _ in inbox), np.int64, len(inbox))
+        keep = np.ones(len(collars), bool)
+        if self.cfg.fix_topic:
+            frames = self._frames
+            collars = np.fromiter((frames.get(f, -1) for f in fixes.frame_id), np.int64,
+                                  len(collars))
+            unknown = np.flatnonzero(collars < 0)
+            if len(unknown):
+                keep[unknown] = False
+                self.unknown_collar_fixes += len(unknown)
+                self.last_unknown_frame = fixes.frame_id[unknown[-1]]
+                self.get_logger().warn(f'{len(unknown)} fixes on {self.cfg.fix_topic} name no '
+                                       f'collar of agents (frame_id '
+                                       f'{self.last_unknown_frame!r})',
+                                       throttle_duration_sec=5.0)
+        ahead = fixes.stamp > time.time() + self.cfg.max_stamp_ahead_s
+        future = np.flatnonzero(keep & ahead)
+        for k in future.tolist():
+            agent = self.cfg.agents[collars[k]]
+            self.rejected_future[agent] += 1
+            self.last_rejection[agent] = (f'future: stamp {fixes.stamp[k]:.3f} is more than '
+                                          f'max_stamp_ahead_s ahead of the wall clock')
+        keep[future] = False
+        if keep.all():
+            return collars, fixes
+        return collars[keep], take_fixes(fixes, keep)
+
+    def process_batch(self, idx: np.ndarray, fixes: NavSatFixes):
+        """Filter fixes of collars ``idx`` (in arrival order) with the collar bank, publish
+        the odometry of the accepted ones and the herd snapshots they complete."""
+        m = len(idx)
         agent_of = self.cfg.agents
-        idx = np.fromiter((self._index[f[0]] for f in fixes), np.int64, m)
-        cols = list(zip(*(f[1:6] for f in fixes)))
-        stamp, lat, lon, alt = (np.asarray(c, dtype=float) for c in cols[:4])
-        status = np.asarray(cols[4], dtype=np.int64)
-        cov = np.array([f[6] for f in fixes], dtype=float).reshape(m, 9)
-        cov_type = np.fromiter((f[7] for f in fixes), np.int64, m)
+        stamp = fixes.stamp
         lat0, lon0, alt0 = self.datum
         with np.errstate(invalid='ignore'):
-            e, n, _ = geodetic_to_enu(lat, lon, alt, lat0, lon0, alt0, nan_alt=alt0)
-        batch = self.bank.process(idx, stamp, e, n, status,
-                                  self.bank.measurement_covariances(cov_type, cov))
+            e, n, _ = geodetic_to_enu(fixes.lat, fixes.lon, fixes.alt, lat0, lon0, alt0,
+                                      nan_alt=alt0)
+        batch = self.bank.process(idx, stamp, e, n, fixes.status,
+                                  self.bank.measurement_covariances(fixes.cov_type, fixes.cov))
         accepted = batch.accepted
         frame = self.cfg.frame_id
-        for k in np.flatnonzero(accepted).tolist():
-            i = int(idx[k])
-            self._odom_publish[i](self._odom.fill(i, stamp[k], batch.x[k], batch.P[k]))
+        done = np.flatnonzero(accepted)
+        publish = self._odom_publish
+        for i, data in zip(idx[done].tolist(),
+                           self._odom.encode(idx[done], stamp[done], batch.x[done],
+                                             batch.P[done])):
+            publish[i](data)
         rejected = np.flatnonzero(~accepted).tolist()
         for k in rejected:
             agent, reason = agent_of[idx[k]], OUTCOMES[batch.outcome[k]]
@@ -432,7 +463,8 @@ class GpsIngest(Node):
                 sl = slice(start, j)
                 for snap in self.clock.observe(idx[sl], stamp[sl], accepted[sl],
                                                batch.x[sl], batch.P[sl]):
-                    self.poses_pub.publish(pose_array_from_snapshot(snap, frame))
+                    self.poses_pub.publish(encode_pose_array(snap.time, frame,
+                                                             snap.positions))
                     self.ticks_published += 1
             if j < m:
                 self.clock_restarts += 1
@@ -443,34 +475,42 @@ class GpsIngest(Node):
                 start = j
 
     # -- datum from the first valid fix -----------------------------------------------
-    def _hold(self, fix):
-        agent, stamp, lat, lon, _, status = fix[:6]
-        self._pending.append(fix)
-        self._pending_latest = max(self._pending_latest, stamp)
-        if fix_is_valid(status, lat, lon) and agent not in self._pending_valid:
-            self._pending_valid[agent] = stamp
+    def _hold(self, collars: np.ndarray, fixes: NavSatFixes):
+        """Hold fixes until the datum can be chosen; then return every fix held, in stamp
+        order (else nothing)."""
+        self._pending.append((collars, fixes))
+        self._pending_latest = max(self._pending_latest, float(fixes.stamp.max()))
+        valid = ((fixes.status != STATUS_NO_FIX) & np.isfinite(fixes.lat)
+                 & np.isfinite(fixes.lon))
+        for k in np.flatnonzero(valid).tolist():
+            self._pending_valid.setdefault(int(collars[k]), float(fixes.stamp[k]))
+        nothing = (np.zeros(0, np.int64), take_fixes(fixes, np.zeros(0, np.int64)))
         if not self._pending_valid:
-            if len(self._pending) > 100 * len(self.cfg.agents):
-                self._pending.pop(0)    # nothing valid yet: bound the memory
-                self.message_errors += 1
-            return
+            held = sum(len(c) for c, _ in self._pending)
+            while held > 100 * len(self.cfg.agents) and len(self._pending) > 1:
+                dropped = len(self._pending.pop(0)[0])   # nothing valid yet: bound memory
+                self.message_errors += dropped
+                held -= dropped
+            return nothing
         everyone = len(self._pending_valid) == len(self.cfg.agents)
         waited = (self._pending_latest - min(self._pending_valid.values())
                   > self.cfg.filter_params.stale_after)
         if everyone or waited:
-            self._choose_datum()
+            return self._choose_datum()
+        return nothing
 
     def _choose_datum(self):
-        held = self._pending
-        table = pd.DataFrame({'time': [f[1] for f in held], 'agent': [f[0] for f in held],
-                              'lat': [f[2] for f in held], 'lon': [f[3] for f in held],
-                              'alt': [f[4] for f in held], 'status': [f[5] for f in held]})
+        collars = np.concatenate([c for c, _ in self._pending])
+        held = concat_fixes([f for _, f in self._pending])
+        table = pd.DataFrame({'time': held.stamp,
+                              'agent': [self.cfg.agents[i] for i in collars.tolist()],
+                              'lat': held.lat, 'lon': held.lon, 'alt': held.alt,
+                              'status': held.status})
         self.datum = choose_datum(table)
         self._log_datum('first valid fix')
         self._pending = []
-        order = np.argsort(table['time'].to_numpy(), kind='stable')
-        self._inbox.extend(held[k] for k in order)
-        self.drain()
+        order = np.argsort(held.stamp, kind='stable')
+        return collars[order], take_fixes(held, order)
 
     def _log_datum(self, source: str):
         self.get_logger().info('datum (%s): lat %.9f lon %.9f alt %.3f'
@@ -545,20 +585,24 @@ class GpsIngest(Node):
             self._statuses[i] = refresh_status(self._statuses[i], f'gps_ingest: {agent}',
                                                level, message, values, hardware_id=agent)
             statuses.append(self._statuses[i])
-        errors_now = self.message_errors > self._errors_reported
-        self._errors_reported = self.message_errors
+        errors = self.message_errors + self.unknown_collar_fixes
+        errors_now = errors > self._errors_reported
+        self._errors_reported = errors
         totals = self.bank.counters.sum(axis=0)
         node_values = {'herd_time': herd_time, 'ticks_published': self.ticks_published,
                        'fixes': int(totals[:-1].sum()) + sum(self.rejected_future.values()),
                        'accepted': int(totals[0]), 'stale_collars': int(stale_all.sum()),
                        'message_errors': self.message_errors,
                        'clock_restarts': self.clock_restarts,
-                       'fixes_waiting_for_datum': len(self._pending),
+                       'unknown_collar_fixes': self.unknown_collar_fixes,
+                       'last_unknown_frame': self.last_unknown_frame,
+                       'fixes_waiting_for_datum': sum(len(c) for c, _ in self._pending),
                        'datum': ('waiting for the first valid fix' if self.datum is None
                                  else ', '.join(f'{v:.9f}' for v in self.datum))}
         statuses.append(diagnostic_status(
             'gps_ingest', WARN if errors_now else OK,
-            'bad messages dropped' if errors_now else
+            ('bad messages dropped' if self.message_errors else 'fixes of unknown collars '
+             'dropped') if errors_now else
             f'{n} collars' + (f', statuses of {share} per period in turn' if share < n else ''),
             node_values))
         self.diag_pub.publish(diagnostic_array(self, statuses))

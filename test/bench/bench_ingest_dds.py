@@ -1,25 +1,30 @@
-"""`gps_ingest` through DDS: N collars at 1 Hz for a minute (issue 3, acceptance 6).
+"""`gps_ingest` through DDS: N collars at 1 Hz for a minute (issues 3 and 12).
 
 Three processes on this machine, loopback-only discovery, a domain of their own:
 
 * the ``gps_ingest`` node (the installed console script), one run per executor;
-* a publisher process (this script, ``--role publisher``): N NavSatFix publishers (sensor-data
-  QoS), collar k publishing at phase k/N of every second, each fix stamped with its publish
-  wall time (live collars: data time = wall time);
-* this process: subscribes every ``/herd/<agent>/odom`` and ``/diagnostics``.
+* a publisher process (this script, ``--role publisher``), collar k publishing at phase k/N
+  of every second, each fix stamped with its publish wall time (live collars: data time =
+  wall time): ``--topics per-collar``, one NavSatFix publisher per collar on
+  ``/herd/<agent>/fix``; ``--topics shared``, a gateway's one publisher on ``/herd/fix``,
+  the collar in ``header.frame_id`` (the node's ``fix_topic`` / ``odom_topic``);
+* this process: receives every Odometry (``/herd/<agent>/odom`` or ``/herd/odom``), reading
+  only its stamp and child frame from the serialized message, and, after the run, the node's
+  ``/diagnostics``.
 
 Latency = wall time an Odometry is received here − its stamp (= the fix's publish time), so
 it includes DDS both ways, the node, and this process' own queueing. Loss: every published
-fix must be counted by the node (accepted or rejected, from its final diagnostics) and every
-accepted one must arrive here as Odometry.
+fix must be counted by the node (accepted or rejected: the totals of its final diagnostics)
+and every accepted one must arrive here as Odometry.
 
     .venv/bin/python test/bench/bench_ingest_dds.py [--collars 1000] [--seconds 60]
-        [--executors events,single_threaded]
+        [--executors events,single_threaded] [--topics per-collar|shared]
 """
 import argparse
 import json
 import os
 import random
+import struct
 import subprocess
 import sys
 import tempfile
@@ -32,6 +37,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 DATUM = (46.8, 7.15, 550.0)
+SHARED_FIX, SHARED_ODOM = '/herd/fix', '/herd/odom'
 
 
 def agents_of(n):
@@ -58,19 +64,28 @@ def bench_env() -> dict:
 
 
 # -- publisher process -----------------------------------------------------------------------
-def run_publisher(n, seconds, rate):
+def run_publisher(n, seconds, rate, shared):
     import rclpy
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import NavSatFix, NavSatStatus
 
     from herd_ros.ingest.geodesy import enu_to_geodetic
-    from herd_ros.nodes.ros_common import seconds_to_stamp
 
     rclpy.init()
     node = rclpy.create_node('bench_collars')
     agents = agents_of(n)
-    pubs = [node.create_publisher(NavSatFix, f'/herd/{a}/fix', qos_profile_sensor_data)
-            for a in agents]
+    if shared:
+        pubs = [node.create_publisher(NavSatFix, SHARED_FIX, qos_profile_sensor_data)] * n
+    else:
+        pubs = [node.create_publisher(NavSatFix, f'/herd/{a}/fix', qos_profile_sensor_data)
+                for a in agents]
+    msgs = []
+    for a in agents:                     # one message per collar, refilled at each fix
+        msg = NavSatFix()
+        msg.header.frame_id = a
+        msg.status.status = NavSatStatus.STATUS_FIX
+        msg.altitude = float('nan')
+        msgs.append(msg)
     deadline = time.monotonic() + 1800     # 10 000 collars: the node takes ~3 min to build
     while time.monotonic() < deadline:
         if all(p.get_subscription_count() > 0 for p in pubs):
@@ -92,16 +107,18 @@ def run_publisher(n, seconds, rate):
     total = int(seconds * rate) * n
     for j in range(total):
         k, cycle = j % n, j // n
+        if k == 0:                       # this cycle's positions, all collars at once
+            z = home + rng.normal(0, 2.0, (n, 2))
+            lat, lon, _ = enu_to_geodetic(z[:, 0], z[:, 1], np.zeros(n), *DATUM)
+            lat, lon = lat.tolist(), lon.tolist()
         due = start + cycle * period + k * period / n
         delay = due - time.time()
         if delay > 0.002:
             time.sleep(delay)
-        z = home[k] + rng.normal(0, 2.0, 2)
-        lat, lon, _ = enu_to_geodetic(z[0], z[1], 0.0, *DATUM)
-        msg = NavSatFix()
-        msg.header.stamp = seconds_to_stamp(time.time())
-        msg.status.status = NavSatStatus.STATUS_FIX
-        msg.latitude, msg.longitude, msg.altitude = float(lat), float(lon), float('nan')
+        msg = msgs[k]
+        ns = time.time_ns()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = ns // 10**9, ns % 10**9
+        msg.latitude, msg.longitude = lat[k], lon[k]
         pubs[k].publish(msg)
         sent[k] += 1
     lag = time.time() - (start + seconds)
@@ -113,22 +130,36 @@ def run_publisher(n, seconds, rate):
 
 
 # -- measuring process ------------------------------------------------------------------------
+def odometry_stamp_and_child(data: bytes) -> tuple[float, str]:
+    """Stamp (s) and child_frame_id of a serialized nav_msgs/Odometry (CDR, little endian:
+    int32 sec, uint32 nanosec, frame_id string, child_frame_id string 4-aligned) -- read
+    here with struct, independently of the node's codec."""
+    sec, nanosec, n = struct.unpack_from('<iII', data, 4)
+    at = 12 + n + (-(12 + n) % 4)            # body offset of the child's length
+    m = struct.unpack_from('<I', data, 4 + at)[0]
+    return sec + 1e-9 * nanosec, data[8 + at:8 + at + m - 1].decode()
+
+
 class Measurer:
     """Receives every odometry (latency) and, once the publisher is done, the node's
-    diagnostics (its counters). Converting a /diagnostics message of 1 000 collar statuses
+    diagnostics (its totals). Converting a /diagnostics message of 1 000 collar statuses
     takes this process ~0.1 s, during which odometry waits: subscribed during the run, it
     would be counted as the node's latency."""
 
-    def __init__(self, node, agents):
+    def __init__(self, node, agents, shared):
         from nav_msgs.msg import Odometry
         self.node = node
         self.latency = []
         self.arrival = []
         self.received = dict.fromkeys(agents, 0)
-        self.counters = {}
-        self.subscriptions = [node.create_subscription(Odometry, f'/herd/{a}/odom',
-                                                       lambda m, a=a: self.on_odom(a, m), 50)
-                              for a in agents]
+        self.totals = None
+        if shared:
+            self.subscriptions = [node.create_subscription(
+                Odometry, SHARED_ODOM, self.on_odom, 10 * len(agents), raw=True)]
+        else:
+            self.subscriptions = [node.create_subscription(Odometry, f'/herd/{a}/odom',
+                                                           self.on_odom, 50, raw=True)
+                                  for a in agents]
 
     def matched(self) -> bool:
         """Every odometry topic has the node's publisher (discovery done both ways)."""
@@ -138,22 +169,21 @@ class Measurer:
         from diagnostic_msgs.msg import DiagnosticArray
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self.on_diag, 5)
 
-    def on_odom(self, agent, msg):
+    def on_odom(self, data):
         now = time.time()
-        self.latency.append(now - (msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec))
+        stamp, agent = odometry_stamp_and_child(data)
+        self.latency.append(now - stamp)
         self.arrival.append(now)
         self.received[agent] += 1
 
     def on_diag(self, msg):
         for s in msg.status:
-            if s.hardware_id:
+            if s.name == 'gps_ingest':
                 v = {kv.key: kv.value for kv in s.values}
-                self.counters[s.hardware_id] = (
-                    int(v['accepted']),
-                    sum(int(v[k]) for k in v if k.startswith('rejected_')))
+                self.totals = (int(v['fixes']), int(v['accepted']))
 
 
-def run_once(n, seconds, rate, executor_name, env):
+def run_once(n, seconds, rate, executor_name, env, shared=False):
     import rclpy
     from rclpy.experimental import EventsExecutor
 
@@ -164,7 +194,9 @@ def run_once(n, seconds, rate, executor_name, env):
                       f'    agents: [{", ".join(agents)}]\n'
                       f'    datum: [{", ".join(str(v) for v in DATUM)}]\n'
                       f'    dt: {1.0 / rate}\n    stale_after: {10.0 / rate}\n'
-                      f'    executor: {executor_name}\n')
+                      f'    executor: {executor_name}\n'
+                      + (f'    fix_topic: {SHARED_FIX}\n    odom_topic: {SHARED_ODOM}\n'
+                         if shared else ''))
     log = open(tmp / 'gps_ingest.log', 'w')
     node_proc = subprocess.Popen([str(Path(sys.executable).parent / 'gps_ingest'),
                                   '--ros-args', '--params-file', str(params)],
@@ -174,7 +206,7 @@ def run_once(n, seconds, rate, executor_name, env):
     rclpy.init(context=context)
     try:
         node = rclpy.create_node('bench_measurer', context=context)
-        measurer = Measurer(node, agents)
+        measurer = Measurer(node, agents, shared)
         executor = EventsExecutor(context=context)
         executor.add_node(node)
 
@@ -189,7 +221,8 @@ def run_once(n, seconds, rate, executor_name, env):
         t_setup = time.monotonic()
         pub_proc = subprocess.Popen([sys.executable, __file__, '--role', 'publisher',
                                      '--collars', str(n), '--seconds', str(seconds),
-                                     '--rate', str(rate)],
+                                     '--rate', str(rate)]
+                                    + (['--topics', 'shared'] if shared else []),
                                     env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                     text=True)
         lines = []
@@ -218,12 +251,11 @@ def run_once(n, seconds, rate, executor_name, env):
         measurer.listen_to_diagnostics()
         sent = next(x for x in lines if 'sent' in x)
         sent_per = dict(zip(agents, sent['sent']))
+        total_sent = int(sum(sent_per.values()))
         # drain: wait until the node has accounted for every fix (or 20 s)
-        spin_for(20, lambda: all(measurer.counters.get(a, (0, 0))[0]
-                                 + measurer.counters.get(a, (0, 0))[1] >= sent_per[a]
-                                 for a in agents)
-                 and sum(measurer.received.values())
-                 >= sum(c[0] for c in measurer.counters.values()))
+        spin_for(20, lambda: measurer.totals is not None
+                 and measurer.totals[0] >= total_sent
+                 and sum(measurer.received.values()) >= measurer.totals[1])
         spin_for(1.5)
         alive = node_proc.poll() is None
     finally:
@@ -236,14 +268,13 @@ def run_once(n, seconds, rate, executor_name, env):
                     proc.kill()
                     proc.wait()
         rclpy.shutdown(context=context)
-    total_sent = int(sum(sent_per.values()))
-    counted = sum(sum(measurer.counters.get(a, (0, 0))) for a in agents)
-    accepted = sum(measurer.counters.get(a, (0, 0))[0] for a in agents)
+    counted, accepted = measurer.totals or (0, 0)
     received = sum(measurer.received.values())
     lat = np.array(measurer.latency) * 1e3
     arrival = np.array(measurer.arrival)
     steady = lat[arrival >= arrival.min() + 5.0] if len(lat) else lat
-    return {'executor': executor_name, 'collars': n, 'sent': total_sent,
+    return {'executor': executor_name, 'topics': 'shared' if shared else 'per-collar',
+            'collars': n, 'sent': total_sent,
             'counted': counted, 'accepted': accepted, 'odom': received,
             'lost_to_node': total_sent - counted, 'lost_odom': accepted - received,
             'p50_ms': float(np.percentile(lat, 50)) if len(lat) else float('nan'),
@@ -261,21 +292,24 @@ def main(argv=None):
     ap.add_argument('--seconds', type=float, default=60.0)
     ap.add_argument('--rate', type=float, default=1.0, help='fixes per collar per second')
     ap.add_argument('--executors', default='events,single_threaded')
+    ap.add_argument('--topics', choices=('per-collar', 'shared'), default='per-collar',
+                    help=f'a topic per collar, or {SHARED_FIX} and {SHARED_ODOM} for all')
     args = ap.parse_args(argv)
+    shared = args.topics == 'shared'
     if args.role == 'publisher':
         try:
-            return run_publisher(args.collars, args.seconds, args.rate)
+            return run_publisher(args.collars, args.seconds, args.rate, shared)
         except KeyboardInterrupt:
             return 0
     env = bench_env()
     os.environ.update({k: env[k] for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE',
                                            'ROS_STATIC_PEERS', 'ROS_DOMAIN_ID')})
-    header = (f'{"executor":>16} {"collars":>7} {"fix/s":>6} {"sent":>7} {"lost->node":>10} '
+    header = (f'{"executor":>16} {"topics":>10} {"collars":>7} {"fix/s":>6} {"sent":>7} {"lost->node":>10} '
               f'{"lost->odom":>10} {"p50 ms":>8} {"p99 ms":>8} {"p99 >5 s":>8} {"node cpu":>8} '
               f'{"setup s":>7}')
     rows = []
     for name in args.executors.split(','):
-        r = run_once(args.collars, args.seconds, args.rate, name.strip(), env)
+        r = run_once(args.collars, args.seconds, args.rate, name.strip(), env, shared)
         rows.append(r)
         if not r['alive']:
             print(f'warning: gps_ingest ({name}) was not alive at the end', file=sys.stderr)
@@ -284,14 +318,15 @@ def main(argv=None):
                   f'offered rate was lower than asked', file=sys.stderr)
     print(header)
     for r in rows:
-        print(f'{r["executor"]:>16} {r["collars"]:>7} {r["collars"] * args.rate:>6.0f} '
+        print(f'{r["executor"]:>16} {r["topics"]:>10} {r["collars"]:>7} {r["collars"] * args.rate:>6.0f} '
               f'{r["sent"]:>7} {r["lost_to_node"]:>10} {r["lost_odom"]:>10} '
               f'{r["p50_ms"]:>8.1f} {r["p99_ms"]:>8.1f} {r["p99_steady_ms"]:>8.1f} '
               f'{100 * r["node_cpu"]:>7.0f}% '
               f'{r["setup_s"]:>7.1f}')
     print(f'one run of {args.seconds:g} s per executor (p50, p99: fix->odom latency over '
           f'every fix; p99 >5 s: over the fixes received after the first 5 s); reproduce with: .venv/bin/python test/bench/bench_ingest_dds.py '
-          f'--collars {args.collars} --seconds {args.seconds:g} --executors {args.executors}')
+          f'--collars {args.collars} --seconds {args.seconds:g} --executors {args.executors} '
+          f'--topics {args.topics}')
     return 0
 
 
