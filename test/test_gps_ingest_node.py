@@ -67,20 +67,35 @@ def stop(proc):
     return proc.returncode
 
 
-class Collars:
-    """Publishes fixes for the agents and collects what gps_ingest publishes."""
+SHARED = {'fix_topic': '/herd/fix', 'odom_topic': '/herd/odom'}
 
-    def __init__(self, node, agents):
+
+class Collars:
+    """Publishes fixes for the agents and collects what gps_ingest publishes; ``shared``:
+    on the node's fix_topic / odom_topic (:data:`SHARED`), the collar in the frames, named
+    each way the node accepts (``<agent>``, ``<agent>_gps``, ``<agent>/gps``)."""
+
+    def __init__(self, node, agents, shared=False):
         self.node = node
         self.agents = list(agents)
-        self.pubs = {a: node.create_publisher(NavSatFix, f'/herd/{a}/fix',
-                                              qos_profile_sensor_data) for a in agents}
+        self.shared = shared
         self.odom = {a: [] for a in agents}
         self.poses = []
         self.diag = {}            # hardware_id or name -> list of (level, message, values)
-        for a in agents:
-            node.create_subscription(Odometry, f'/herd/{a}/odom',
-                                     lambda m, a=a: self.odom[a].append(m), 100)
+        if shared:
+            pub = node.create_publisher(NavSatFix, SHARED['fix_topic'],
+                                        qos_profile_sensor_data)
+            self.pubs = dict.fromkeys(agents, pub)
+            self.frames = {a: (a, f'{a}_gps', f'{a}/gps')[k % 3] for k, a in enumerate(agents)}
+            node.create_subscription(Odometry, SHARED['odom_topic'],
+                                     lambda m: self.odom[m.child_frame_id].append(m), 1000)
+        else:
+            self.pubs = {a: node.create_publisher(NavSatFix, f'/herd/{a}/fix',
+                                                  qos_profile_sensor_data) for a in agents}
+            self.frames = {a: f'{a}/gps' for a in agents}
+            for a in agents:
+                node.create_subscription(Odometry, f'/herd/{a}/odom',
+                                         lambda m, a=a: self.odom[a].append(m), 100)
         node.create_subscription(PoseArray, '/herd/poses', self.poses.append, 100)
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 50)
         self.executor = rclpy.executors.SingleThreadedExecutor(context=node.context)
@@ -105,7 +120,8 @@ class Collars:
             return (all(p.get_subscription_count() > 0 for p in self.pubs.values())
                     and self.node.count_publishers('/herd/poses') > 0
                     and self.node.count_publishers('/diagnostics') > 0
-                    and all(self.node.count_publishers(f'/herd/{a}/odom') > 0
+                    and all(self.node.count_publishers(
+                        SHARED['odom_topic'] if self.shared else f'/herd/{a}/odom') > 0
                             for a in self.agents))
         ok = self.spin(timeout, lambda: matched() or proc.poll() is not None)
         assert proc.poll() is None, f'gps_ingest exited: {proc.log_path.read_text()}'
@@ -117,7 +133,7 @@ class Collars:
         for k, (agent, stamp, lat, lon, alt, status, cov_type, var) in enumerate(fixes):
             msg = NavSatFix()
             msg.header.stamp = seconds_to_stamp(stamp)
-            msg.header.frame_id = f'{agent}/gps'
+            msg.header.frame_id = self.frames[agent]
             msg.status.status = int(status)
             msg.status.service = NavSatStatus.SERVICE_GPS
             msg.latitude, msg.longitude, msg.altitude = float(lat), float(lon), float(alt)
@@ -248,10 +264,13 @@ def test_odometry_poses_and_bad_messages(ros, console_script, tmp_path):
     assert rc == 0, proc.log_path.read_text()
 
 
-def test_same_snapshots_as_the_offline_path(ros, console_script, tmp_path):
+@pytest.mark.parametrize('topics', ['per-collar', 'shared'])
+def test_same_snapshots_as_the_offline_path(ros, console_script, tmp_path, topics):
     """Noisy, irregular fixes with jumps, NaN and NO_FIX; no datum parameter; the first
     round published in reverse stamp order: the node must choose the offline datum and give
-    the offline snapshots."""
+    the offline snapshots. Shared: every collar on one fix topic and one odometry topic,
+    plus a fix of a collar not in ``agents`` and a message that is not a NavSatFix, each
+    counted and dropped."""
     node, env = ros
     agents = ['cow_a', 'cow_b', 'cow_c']
     rng = np.random.default_rng(11)
@@ -282,14 +301,31 @@ def test_same_snapshots_as_the_offline_path(ros, console_script, tmp_path):
                   gate_probability=0.995, max_speed=3.0)
     offline = trajectory_from_fixes(table, datum=None, trim=False, agents=agents, **params)
 
-    collars = Collars(node, agents)
-    proc = start_node(console_script, env, tmp_path, agents, **params)
+    shared = topics == 'shared'
+    collars = Collars(node, agents, shared=shared)
+    proc = start_node(console_script, env, tmp_path, agents, **params,
+                      **(SHARED if shared else {}))
     try:
         collars.wait_for_node(proc)
-        collars.publish(stream)
+        collars.publish(stream[:200])
+        if shared:
+            stranger = fix_row('cow_x', T0 + 60.0, (0.0, 0.0), (0.0, 0.0))
+            collars.frames['cow_x'] = 'cow_x'
+            collars.pubs['cow_x'] = collars.pubs['cow_a']
+            collars.publish([stranger])
+            collars.pubs['cow_a'].publish(b'\x00\x01\x00\x00' + bytes(9))   # not a NavSatFix
+        collars.publish(stream[200:])
         sent = {a: sum(f[0] == a for f in stream) for a in agents}
         collars.spin(15.0, lambda: all(collars.counted(a) == sent[a] for a in agents))
         assert {a: collars.counted(a) for a in agents} == sent, 'fixes were lost'
+        if shared:
+            collars.spin(5.0, lambda: int(collars.last_status('gps_ingest')[2]
+                                          ['unknown_collar_fixes']) == 1)
+            values = collars.last_status('gps_ingest')[2]
+            assert int(values['unknown_collar_fixes']) == 1
+            assert values['last_unknown_frame'] == 'cow_x'
+            assert int(values['message_errors']) == 1
+            assert proc.poll() is None
     finally:
         rc = stop(proc)
     assert rc == 0
@@ -323,6 +359,8 @@ def test_same_snapshots_as_the_offline_path(ros, console_script, tmp_path):
     (['agents:=[cow_a]', 'dt:=0.0'], 'dt must be within [0.001, 1e+06], got 0.0'),
     (['agents:=[cow_a]', 'executor:=fast'], 'executor must be one of events, single_threaded'),
     (['agents:=[cow_a]', 'datum:=[46.8]'], 'datum must be []'),
+    (['agents:=[cow_a]', 'fix_topic:=herd fix'], "fix_topic must be empty or a topic name, "
+                                                 "got 'herd fix'"),
 ])
 def test_bad_parameters_stop_with_one_clear_line(ros_env, console_script, overrides, message):
     args = [console_script('gps_ingest'), '--ros-args']

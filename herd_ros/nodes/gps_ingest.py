@@ -228,7 +228,7 @@ def _topic(p: dict, name: str) -> str:
             validate_full_topic_name(topic if topic.startswith('/') else '/' + topic)
         except Exception as exc:    # rclpy's InvalidTopicNameException
             raise ParameterError(f'{name} must be empty or a topic name, got {topic!r} '
-                                 f'({str(exc).splitlines()[0]})') from None
+                                 f'({str(exc).splitlines()[0].rstrip(":")})') from None
     return topic
 
 

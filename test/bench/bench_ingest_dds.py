@@ -285,15 +285,24 @@ def run_once(n, seconds, rate, executor_name, env, shared=False):
             'publisher_lag_s': sent['lag_at_end_s'], 'alive': alive}
 
 
+#: ``make bench`` (no --collars): what issue 12 asks, in one run
+SUITE = [(1000, 'per-collar', 'events'), (1000, 'per-collar', 'single_threaded'),
+         (10000, 'shared', 'events')]
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--role', choices=('bench', 'publisher'), default='bench')
-    ap.add_argument('--collars', type=int, default=1000)
+    ap.add_argument('--collars', type=int, default=None,
+                    help='collars (default: the suite 1 000 per-collar with both executors, '
+                         '10 000 shared with the events executor)')
     ap.add_argument('--seconds', type=float, default=60.0)
     ap.add_argument('--rate', type=float, default=1.0, help='fixes per collar per second')
-    ap.add_argument('--executors', default='events,single_threaded')
+    ap.add_argument('--executors', default='events,single_threaded',
+                    help='with --collars: the executors to run, one run each')
     ap.add_argument('--topics', choices=('per-collar', 'shared'), default='per-collar',
-                    help=f'a topic per collar, or {SHARED_FIX} and {SHARED_ODOM} for all')
+                    help=f'with --collars: a topic per collar, or {SHARED_FIX} and '
+                         f'{SHARED_ODOM} for all')
     args = ap.parse_args(argv)
     shared = args.topics == 'shared'
     if args.role == 'publisher':
@@ -304,29 +313,33 @@ def main(argv=None):
     env = bench_env()
     os.environ.update({k: env[k] for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE',
                                            'ROS_STATIC_PEERS', 'ROS_DOMAIN_ID')})
-    header = (f'{"executor":>16} {"topics":>10} {"collars":>7} {"fix/s":>6} {"sent":>7} {"lost->node":>10} '
-              f'{"lost->odom":>10} {"p50 ms":>8} {"p99 ms":>8} {"p99 >5 s":>8} {"node cpu":>8} '
-              f'{"setup s":>7}')
+    if args.collars is None:
+        runs = SUITE
+    else:
+        runs = [(args.collars, args.topics, name.strip()) for name in args.executors.split(',')]
     rows = []
-    for name in args.executors.split(','):
-        r = run_once(args.collars, args.seconds, args.rate, name.strip(), env, shared)
+    for collars, topics, name in runs:
+        r = run_once(collars, args.seconds, args.rate, name, env, topics == 'shared')
         rows.append(r)
         if not r['alive']:
             print(f'warning: gps_ingest ({name}) was not alive at the end', file=sys.stderr)
         if r['publisher_lag_s'] > 1.0:
             print(f'warning: the publisher fell {r["publisher_lag_s"]:.1f} s behind: the '
                   f'offered rate was lower than asked', file=sys.stderr)
-    print(header)
+    print(f'{"executor":>16} {"topics":>10} {"collars":>7} {"fix/s":>6} {"sent":>7} '
+          f'{"lost->node":>10} {"lost->odom":>10} {"p50 ms":>8} {"p99 ms":>8} '
+          f'{"p99 >5 s":>8} {"node cpu":>8} {"setup s":>7}')
     for r in rows:
-        print(f'{r["executor"]:>16} {r["topics"]:>10} {r["collars"]:>7} {r["collars"] * args.rate:>6.0f} '
-              f'{r["sent"]:>7} {r["lost_to_node"]:>10} {r["lost_odom"]:>10} '
-              f'{r["p50_ms"]:>8.1f} {r["p99_ms"]:>8.1f} {r["p99_steady_ms"]:>8.1f} '
-              f'{100 * r["node_cpu"]:>7.0f}% '
-              f'{r["setup_s"]:>7.1f}')
-    print(f'one run of {args.seconds:g} s per executor (p50, p99: fix->odom latency over '
-          f'every fix; p99 >5 s: over the fixes received after the first 5 s); reproduce with: .venv/bin/python test/bench/bench_ingest_dds.py '
-          f'--collars {args.collars} --seconds {args.seconds:g} --executors {args.executors} '
-          f'--topics {args.topics}')
+        print(f'{r["executor"]:>16} {r["topics"]:>10} {r["collars"]:>7} '
+              f'{r["collars"] * args.rate:>6.0f} {r["sent"]:>7} {r["lost_to_node"]:>10} '
+              f'{r["lost_odom"]:>10} {r["p50_ms"]:>8.1f} {r["p99_ms"]:>8.1f} '
+              f'{r["p99_steady_ms"]:>8.1f} {100 * r["node_cpu"]:>7.0f}% {r["setup_s"]:>7.1f}')
+    print(f'one run of {args.seconds:g} s each (p50, p99: fix->odom latency over every fix; '
+          f'p99 >5 s: over the fixes received after the first 5 s; node cpu: share of one '
+          f'core); reproduce with: .venv/bin/python test/bench/bench_ingest_dds.py '
+          + ('' if args.collars is None else
+             f'--collars {args.collars} --executors {args.executors} --topics {args.topics} ')
+          + f'--seconds {args.seconds:g}')
     return 0
 
 
