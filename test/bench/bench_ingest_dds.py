@@ -153,6 +153,11 @@ class Measurer:
         self.arrival = []
         self.received = dict.fromkeys(agents, 0)
         self.totals = None
+        self.ticks = []          # (arrival, bytes) of every /herd/poses
+        from geometry_msgs.msg import PoseArray
+        node.create_subscription(PoseArray, '/herd/poses',
+                                 lambda data: self.ticks.append((time.time(), len(data))), 100,
+                                 raw=True)
         if shared:
             self.subscriptions = [node.create_subscription(
                 Odometry, SHARED_ODOM, self.on_odom, 10 * len(agents), raw=True)]
@@ -162,8 +167,10 @@ class Measurer:
                                   for a in agents]
 
     def matched(self) -> bool:
-        """Every odometry topic has the node's publisher (discovery done both ways)."""
-        return all(s.get_publisher_count() > 0 for s in self.subscriptions)
+        """Every odometry topic and /herd/poses has the node's publisher (discovery done
+        both ways)."""
+        return (all(s.get_publisher_count() > 0 for s in self.subscriptions)
+                and self.node.count_publishers('/herd/poses') > 0)
 
     def listen_to_diagnostics(self):
         from diagnostic_msgs.msg import DiagnosticArray
@@ -282,6 +289,8 @@ def run_once(n, seconds, rate, executor_name, env, shared=False):
             'p99_steady_ms': (float(np.percentile(steady, 99)) if len(steady)
                               else float('nan')),
             'node_cpu': (cpu1 - cpu0) / run_s, 'setup_s': setup_s,
+            'ticks': len(measurer.ticks),
+            'tick_kb': measurer.ticks[-1][1] / 1024 if measurer.ticks else 0.0,
             'publisher_lag_s': sent['lag_at_end_s'], 'alive': alive}
 
 
@@ -328,15 +337,17 @@ def main(argv=None):
                   f'offered rate was lower than asked', file=sys.stderr)
     print(f'{"executor":>16} {"topics":>10} {"collars":>7} {"fix/s":>6} {"sent":>7} '
           f'{"lost->node":>10} {"lost->odom":>10} {"p50 ms":>8} {"p99 ms":>8} '
-          f'{"p99 >5 s":>8} {"node cpu":>8} {"setup s":>7}')
+          f'{"p99 >5 s":>8} {"node cpu":>8} {"setup s":>7} {"ticks":>6} {"tick kB":>7}')
     for r in rows:
         print(f'{r["executor"]:>16} {r["topics"]:>10} {r["collars"]:>7} '
               f'{r["collars"] * args.rate:>6.0f} {r["sent"]:>7} {r["lost_to_node"]:>10} '
               f'{r["lost_odom"]:>10} {r["p50_ms"]:>8.1f} {r["p99_ms"]:>8.1f} '
-              f'{r["p99_steady_ms"]:>8.1f} {100 * r["node_cpu"]:>7.0f}% {r["setup_s"]:>7.1f}')
+              f'{r["p99_steady_ms"]:>8.1f} {100 * r["node_cpu"]:>7.0f}% {r["setup_s"]:>7.1f} '
+              f'{r["ticks"]:>6} {r["tick_kb"]:>7.0f}')
     print(f'one run of {args.seconds:g} s each (p50, p99: fix->odom latency over every fix; '
           f'p99 >5 s: over the fixes received after the first 5 s; node cpu: share of one '
-          f'core); reproduce with: .venv/bin/python test/bench/bench_ingest_dds.py '
+          f'core; ticks: /herd/poses snapshots received here, tick kB: the last one\'s '
+          f'size); reproduce with: .venv/bin/python test/bench/bench_ingest_dds.py '
           + ('' if args.collars is None else
              f'--collars {args.collars} --executors {args.executors} --topics {args.topics} ')
           + f'--seconds {args.seconds:g}')
