@@ -78,7 +78,7 @@ from herd_ros.ingest.geodesy import geodetic_to_enu
 from herd_ros.ingest.herd_clock import BatchHerdClock
 from herd_ros.ingest.pipeline import choose_datum
 from herd_ros.io.cdr import (NavSatFixes, OdometryEncoder, concat_fixes, decode_navsatfixes,
-                             encode_pose_array, take_fixes)
+                             encode_pose_array, no_fixes, take_fixes)
 from herd_ros.model.model_file import check_agent_id
 from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
                                        declare_parameters, describe_remaining_parameters,
@@ -387,14 +387,11 @@ class GpsIngest(Node):
             self.message_errors += len(bad)
             self.get_logger().warn(f'{len(bad)} fixes dropped: not a NavSatFix ({bad[0][1]})',
                                    throttle_duration_sec=5.0)
-            skip = {k for k, _ in bad}
-            inbox = [entry for k, entry in enumerate(inbox) if k not in skip]
-        collars = np.fromiter((c for c, _ in inbox), np.int64, len(inbox))
-        keep = np.ones(len(collars), bool)
+        m = len(fixes.stamp)
+        keep = np.ones(m, bool)
         if self.cfg.fix_topic:
             frames = self._frames
-            collars = np.fromiter((frames.get(f, -1) for f in fixes.frame_id), np.int64,
-                                  len(collars))
+            collars = np.fromiter((frames.get(f, -1) for f in fixes.frame_id), np.int64, m)
             unknown = np.flatnonzero(collars < 0)
             if len(unknown):
                 keep[unknown] = False
@@ -404,6 +401,10 @@ class GpsIngest(Node):
                                        f'collar of agents (frame_id '
                                        f'{self.last_unknown_frame!r})',
                                        throttle_duration_sec=5.0)
+        else:
+            skip = {k for k, _ in bad}
+            collars = np.fromiter((c for k, (c, _) in enumerate(inbox) if k not in skip),
+                                  np.int64, m)
         ahead = fixes.stamp > time.time() + self.cfg.max_stamp_ahead_s
         future = np.flatnonzero(keep & ahead)
         for k in future.tolist():
@@ -484,7 +485,7 @@ class GpsIngest(Node):
                  & np.isfinite(fixes.lon))
         for k in np.flatnonzero(valid).tolist():
             self._pending_valid.setdefault(int(collars[k]), float(fixes.stamp[k]))
-        nothing = (np.zeros(0, np.int64), take_fixes(fixes, np.zeros(0, np.int64)))
+        nothing = (np.zeros(0, np.int64), no_fixes())
         if not self._pending_valid:
             held = sum(len(c) for c, _ in self._pending)
             while held > 100 * len(self.cfg.agents) and len(self._pending) > 1:

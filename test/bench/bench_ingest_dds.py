@@ -257,8 +257,7 @@ def run_once(n, seconds, rate, executor_name, env, shared=False):
         cpu1 = cpu_seconds(node_proc.pid)
         measurer.listen_to_diagnostics()
         sent = next(x for x in lines if 'sent' in x)
-        sent_per = dict(zip(agents, sent['sent']))
-        total_sent = int(sum(sent_per.values()))
+        total_sent = int(sum(sent['sent']))
         # drain: wait until the node has accounted for every fix (or 20 s)
         spin_for(20, lambda: measurer.totals is not None
                  and measurer.totals[0] >= total_sent
