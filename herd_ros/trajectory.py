@@ -212,7 +212,7 @@ def write_trajectory_csv(path, runs: list[HerdTrajectory] | HerdTrajectory,
     names = {str(a) for r in runs for a in r.agents} | {str(r.run) for r in runs}
     plain = not any(ch in name for name in names for ch in ',"\r\n')
     fixed = re.fullmatch(r'%\.(\d+)f', float_format)
-    if plain and fixed:     # column-wise in numpy: 3x faster than Python's formatting, same text
+    if plain and fixed:     # column-wise in numpy (csv_bytes): same text, ~2x faster
         decimals = int(fixed.group(1))
         fields = []
         for c in table.columns:
