@@ -1,9 +1,29 @@
 """ament_python build of herd_ros: `colcon build` on a ROS 2 Jazzy install, `pip install .` on the pip path."""
+import os
+import sys
 from glob import glob
 
 from setuptools import find_packages, setup
 
 package_name = 'herd_ros'
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def compiled_kernels():
+    """The collar kernels compiled ahead of time (herd_ros/ingest/aot.py), an optional
+    extension: where numba cannot be imported here, or (setuptools' ``optional``) where no C
+    compiler builds it, herd_ros runs the same kernels through numba's JIT instead."""
+    sys.path.insert(0, HERE)
+    try:
+        from herd_ros.ingest.aot import compiler
+        return [compiler().distutils_extension(optional=True)]
+    except Exception as exc:  # noqa: BLE001 - any failure here only costs speed
+        print(f'herd_ros: the collar kernels are not compiled ahead of time ({exc}); numba '
+              f'compiles them at first use', file=sys.stderr)
+        return []
+    finally:
+        sys.path.remove(HERE)
+
 
 NODES = ['gps_ingest', 'estimator', 'controller', 'fleet_sim', 'replay', 'record']
 
@@ -22,7 +42,8 @@ setup(
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'pandas', 'numba', 'filterpy', 'rosbags', 'PyYAML',
                       'matplotlib', 'tqdm'],
-    zip_safe=True,
+    ext_modules=compiled_kernels(),
+    zip_safe=False,
     maintainer='herd_ros maintainers',
     maintainer_email='maintainers@herd-ros.invalid',
     description='Learn herd dynamics from GPS collars and drive robot fleets with them.',

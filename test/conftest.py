@@ -53,3 +53,36 @@ def console_script():
             pytest.fail(f'{name} is not installed in {VENV_BIN}: run `make setup`')
         return str(path)
     return find
+
+
+@pytest.fixture(scope='session')
+def aot_kernels(tmp_path_factory):
+    """The collar kernels compiled ahead of time from this tree, as ``setup.py`` does, into
+    a temporary directory (:class:`herd_ros.ingest.aot.AheadOfTime`). Skipped only where
+    there is no C compiler, where ``setup.py`` cannot build the extension either."""
+    import importlib.util
+    import shutil
+    import sysconfig
+    compiler = (sysconfig.get_config_var('CC') or 'cc').split()[0]
+    if shutil.which(compiler) is None:
+        pytest.skip(f'no C compiler ({compiler}): the kernels run through numba only')
+    from herd_ros.ingest import aot
+    out = tmp_path_factory.mktemp('aot')
+    aot.compiler(out).compile()
+    path = next(out.glob(aot.EXTENSION + '.*'))
+    spec = importlib.util.spec_from_file_location(aot.EXTENSION, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return aot.AheadOfTime(module)
+
+
+@pytest.fixture(params=['jit', 'aot'])
+def kernels(request, monkeypatch):
+    """The test runs once with each compilation of the collar kernels: numba's JIT and the
+    ahead-of-time extension (:mod:`herd_ros.ingest.aot`)."""
+    from herd_ros.ingest import aot, collar_bank, herd_clock
+    chosen = (aot.load_kernels('jit') if request.param == 'jit'
+              else request.getfixturevalue('aot_kernels'))
+    monkeypatch.setattr(collar_bank, 'KERNELS', chosen)
+    monkeypatch.setattr(herd_clock, 'KERNELS', chosen)
+    return chosen

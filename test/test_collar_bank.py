@@ -7,6 +7,10 @@ re-initialised, or the same rejection reason), the same counters, and states equ
 intervals, silences of hours, late starts and early ends, outlier bursts, duplicated
 stamps, NO_FIX fixes), with every covariance type, and whether the fixes come one collar
 after another (offline) or interleaved in arbitrary batches (the node).
+
+Every test runs twice (the ``kernels`` fixture): with the loops compiled by numba at run
+time and with the extension compiled ahead of time from the same source
+(:mod:`herd_ros.ingest.aot`), the one an installed ``herd-ros ingest`` runs.
 """
 import numpy as np
 import pandas as pd
@@ -23,6 +27,8 @@ from herd_ros.synthesis.collar_errors import CollarErrorModel, simulate_collar_f
 from herd_ros.synthesis.cow_scenario import simulate_cow_herd
 
 TOL_M = 1e-9
+
+pytestmark = pytest.mark.usefixtures('kernels')
 
 
 @pytest.fixture(scope='module')

@@ -88,7 +88,7 @@ def batch_streaming(fixes, dt, batch, depth=8):
 
 
 @pytest.mark.parametrize('batch,depth', [(1, 8), (7, 2), (64, 8)])
-def test_batch_clock_equals_offline(batch, depth):
+def test_batch_clock_equals_offline(batch, depth, kernels):
     """Fixes one at a time or in batches (rings that must grow included): the snapshots of
     the offline resampling."""
     fixes = herd_fixes(1)

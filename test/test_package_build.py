@@ -42,6 +42,15 @@ def test_every_executable_lands_in_lib(colcon_install):
         assert os.access(lib / name, os.X_OK)
 
 
+def test_colcon_build_compiles_the_collar_kernels(colcon_install, aot_kernels):
+    """setup.py compiles the collar kernels ahead of time under colcon too (where a C
+    compiler is present: ``aot_kernels`` skips otherwise), so `ros2 run herd_ros
+    gps_ingest` starts without numba."""
+    built = list(colcon_install.glob('herd_ros/lib/python3*/site-packages/herd_ros/ingest/'
+                                     '_collar_kernels.*'))
+    assert built, 'herd_ros/ingest/_collar_kernels was not built by colcon'
+
+
 def test_share_directory_found_by_ament_index(colcon_install):
     env = dict(os.environ)
     env['AMENT_PREFIX_PATH'] = f'{colcon_install / "herd_ros"}:{sys.prefix}'

@@ -31,14 +31,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from herd_ros.ingest.collar_bank import AVAILABLE as _COMPILED, predict_states as _compiled
+from herd_ros.ingest.collar_bank import AVAILABLE as _COMPILED, KERNELS
+from herd_ros.ingest.collar_bank import predict_states as _compiled
 from herd_ros.ingest.collar_filter import CollarFilter, predict_state
 from herd_ros.trajectory import HerdTrajectory
 
 
 def predict_states(x, P, tau, accel_std, velocity_tau=0.0):
     """:func:`~herd_ros.ingest.collar_filter.predict_state` over many states: compiled
-    (:func:`herd_ros.ingest.collar_bank.predict_states`) where numba is present."""
+    (:func:`herd_ros.ingest.collar_bank.predict_states`) where the kernels are."""
     if _COMPILED and np.ndim(x) == 2:
         return _compiled(x, P, tau, accel_std, velocity_tau)
     return predict_state(x, P, tau, accel_std, velocity_tau)
@@ -376,9 +377,10 @@ class BatchHerdClock:
         keep = np.asarray(accepted, bool) & finite
         rows = np.flatnonzero(keep)
         while len(rows):
-            done = _record_states(collar[rows], stamp[rows], np.ascontiguousarray(x[rows]),
-                                  np.ascontiguousarray(P[rows]), self.next_tick, self.count,
-                                  self.rt, self.rx, self.rP)
+            done = KERNELS.record_states(collar[rows], stamp[rows],
+                                         np.ascontiguousarray(x[rows]),
+                                         np.ascontiguousarray(P[rows]), self.next_tick,
+                                         self.count, self.rt, self.rx, self.rP)
             if done == len(rows):
                 break
             self._grow()
@@ -393,8 +395,9 @@ class BatchHerdClock:
 
     @staticmethod
     def warm_up():
-        """Load the compiled kernels (numba's cache: ~0.3 s the first time in a process) so
-        that the first fixes of a live node do not wait for it."""
+        """Load the compiled kernels (from numba's cache: ~0.3 s the first time in a process;
+        instant when compiled ahead of time) so that the first fixes of a live node do
+        not wait for it."""
         clock = BatchHerdClock(['warm-up'], 1.0, 1.0, 0.1)
         clock.observe(np.zeros(1, np.int64), np.zeros(1), np.ones(1, bool), np.zeros((1, 4)),
                       np.eye(4)[None])
@@ -424,57 +427,9 @@ class BatchHerdClock:
         P = np.empty((n, 4, 4))
         stale = np.empty(n, np.bool_)
         init = np.empty(n, np.bool_)
-        _snapshot(float(tick), self.count, self.rt, self.rx, self.rP, self.accel_std,
+        KERNELS.snapshot(float(tick), self.count, self.rt, self.rx, self.rP, self.accel_std,
                   self.velocity_tau, self.stale_after, x, P, stale, init)
         return HerdSnapshot(float(tick), list(self.agents), x[:, :2].copy(), x[:, 2:].copy(),
                             P[:, :2, :2].copy(), stale, init)
 
     _snapshot = snapshot
-
-
-from herd_ros.ingest.collar_bank import _jit, _predict  # noqa: E402
-
-
-@_jit
-def _record_states(collar, stamp, x, P, next_tick, count, rt, rx, rP):
-    """Append each accepted state to its collar's ring, first dropping the states no
-    longer needed (superseded by a later one at or before ``next_tick``); returns how many
-    were stored (fewer: a ring is full of needed states and must grow)."""
-    depth = rt.shape[1]
-    for m in range(collar.shape[0]):
-        i = collar[m]
-        while count[i] >= 2 and rt[i, 1] <= next_tick:
-            for k in range(count[i] - 1):
-                rt[i, k] = rt[i, k + 1]
-                rx[i, k] = rx[i, k + 1]
-                rP[i, k] = rP[i, k + 1]
-            count[i] -= 1
-        if count[i] == depth:
-            return m
-        k = count[i]
-        rt[i, k] = stamp[m]
-        rx[i, k] = x[m]
-        rP[i, k] = P[m]
-        count[i] = k + 1
-    return collar.shape[0]
-
-
-@_jit
-def _snapshot(tick, count, rt, rx, rP, accel_std, velocity_tau, stale_after, x, P, stale,
-              init):
-    for i in range(count.shape[0]):
-        k = count[i] - 1
-        while k >= 0 and rt[i, k] > tick:
-            k -= 1
-        if k < 0:
-            x[i] = np.nan
-            P[i] = np.nan
-            stale[i] = True
-            init[i] = False
-            continue
-        tau = tick - rt[i, k]
-        _predict(rx[i, k], rP[i, k], tau, accel_std, velocity_tau, x[i], P[i])
-        init[i] = True
-        stale[i] = tau > stale_after
-        if stale[i]:
-            x[i] = np.nan

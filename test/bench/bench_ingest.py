@@ -2,9 +2,10 @@
 
 1. **Whole processes** on 360 000 fixes (200 collars × 30 min at 1 Hz, 3 m noise, 1 % jumps
    of 50 m, a GPS CSV): ``herd-ros ingest FIXES -o OUT --dt 1`` (the installed console
-   script) against the plain filterpy loop of ``plain_filterpy_loop.py``, each timed from
-   process start to exit, median of 3 (after one ingest run that fills numba's on-disk
-   cache; that first run is reported too).
+   script, with the kernels it finds: compiled at install, or numba's) against the plain
+   filterpy loop of ``plain_filterpy_loop.py``, each timed from process start to exit,
+   median of 3 (after one ingest run; that first run is reported too). Then the same
+   ingest with ``HERD_ROS_KERNELS=jit`` (numba's cache filled by one run first).
 2. **The core alone**: :class:`herd_ros.ingest.collar_bank.CollarBank` on 3.6 M fixes
    (1 000 collars × 1 h at 1 Hz): measurement covariances + the compiled filter loop,
    fixes per second, median of 3.
@@ -53,10 +54,19 @@ def herd_ros_command():
     return [str(script)] if script.exists() else [sys.executable, '-m', 'herd_ros.cli.main']
 
 
-def timed(cmd):
+def timed(cmd, **env):
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                   env={**os.environ, **env})
     return time.perf_counter() - t0
+
+
+def installed_kernels():
+    """Which collar kernels the installed package loads (``aot`` or ``jit``)."""
+    code = 'from herd_ros.ingest.collar_bank import KERNELS; print(KERNELS.kind)'
+    env = {k: v for k, v in os.environ.items() if k != 'PYTHONPATH'}
+    return subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          cwd=tempfile.gettempdir(), env=env, check=True).stdout.strip()
 
 
 def whole_processes(repeats):
@@ -71,13 +81,17 @@ def whole_processes(repeats):
         first = timed(ingest)
         ours = [timed(ingest) for _ in range(repeats)]
         base = [timed(plain) for _ in range(repeats)]
-    mo, mb = statistics.median(ours), statistics.median(base)
+        timed(ingest, HERD_ROS_KERNELS='jit')
+        jit = [timed(ingest, HERD_ROS_KERNELS='jit') for _ in range(repeats)]
+    mo, mb, mj = statistics.median(ours), statistics.median(base), statistics.median(jit)
     print(f'whole processes on {len(fixes)} fixes (200 collars x 30 min at 1 Hz), median of '
           f'{repeats}:')
     print(f'  herd-ros ingest           {mo:7.2f} s  ({len(fixes) / mo:9.0f} fixes/s; '
-          f'first run, numba cache cold or warm: {first:.2f} s)')
+          f'kernels: {installed_kernels()}; first run: {first:.2f} s)')
     print(f'  plain filterpy loop       {mb:7.2f} s  ({len(fixes) / mb:9.0f} fixes/s)')
     print(f'  speed-up                  {mb / mo:7.1f} x')
+    print(f'  herd-ros ingest, numba    {mj:7.2f} s  (HERD_ROS_KERNELS=jit: {mb / mj:.1f} x '
+          f'the loop)')
 
 
 def core(repeats, n=1000, seconds=3600):
