@@ -53,12 +53,14 @@ def cpu_seconds(pid):
 
 def bench_env() -> dict:
     """Environment of the benchmark's processes: DDS on this machine (loopback discovery, a
-    domain of the run's own), this checkout importable, unbuffered output."""
+    domain of the run's own), unbuffered output. The nodes are the installed console scripts
+    running the installed package (``make bench`` reinstalls it from this checkout first),
+    with the collar kernels it was built with; the publisher imports this checkout itself."""
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env['ROS_STATIC_PEERS'] = ''
     env.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
-    env['PYTHONPATH'] = os.pathsep.join([str(REPO), env.get('PYTHONPATH', '')])
+    env.pop('PYTHONPATH', None)
     env['PYTHONUNBUFFERED'] = '1'
     return env
 

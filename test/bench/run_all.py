@@ -22,7 +22,6 @@ def main(argv):
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env['ROS_STATIC_PEERS'] = ''
     env.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
-    env['PYTHONPATH'] = os.pathsep.join([str(HERE.parents[1]), env.get('PYTHONPATH', '')])
     failed = []
     for name in names:
         print(f'\n=== {name}', flush=True)
