@@ -18,8 +18,8 @@ process. ``HERD_ROS_KERNELS=jit`` (or ``aot``) forces a path.
 
 pycc's wrappers trust their arguments (a float32 array where float64 is declared crashes
 the process, a strided view is read as contiguous), so :class:`AheadOfTime` checks every
-argument against :data:`EXPORTS` before the call. This
-module itself imports neither numba nor the kernels until asked.
+argument against :data:`EXPORTS` before the call. This module itself imports neither
+numba nor the kernels until asked.
 """
 from __future__ import annotations
 
@@ -37,9 +37,10 @@ SOURCES = ('collar_kernels.py', 'fix_outcomes.py', 'aot.py')
 #: environment variable choosing the kernels: ``auto`` (default), ``aot`` or ``jit``
 ENV = 'HERD_ROS_KERNELS'
 
-#: The entry points of :mod:`~herd_ros.ingest.collar_kernels`: name -> (return type, argument types). An argument type is a scalar
-#: (``'f8'`` float64, ``'i8'`` int64) or an array ``(dtype, ndim, written)``, always
-#: C-contiguous; ``written`` marks the arrays the kernel writes into.
+#: The entry points of :mod:`~herd_ros.ingest.collar_kernels`: name -> (return type,
+#: argument types). An argument type is a scalar (``'f8'`` float64, ``'i8'`` int64) or an
+#: array ``(dtype, ndim, written)``, always C-contiguous; ``written`` marks the arrays the
+#: kernel writes into.
 EXPORTS = {
     'covariances': ('void', (('i8', 1, False), ('f8', 2, False), 'f8', 'f8',
                              ('f8', 3, True))),
@@ -93,9 +94,9 @@ def source_digest() -> int:
 
 
 class Kernels:
-    """The entry points of :data:`EXPORTS` as attributes
-    (``covariances``, ``predict_many``, ``process_batch``, ``record_states``, ``snapshot``)
-    and ``kind``: ``'aot'`` or ``'jit'``."""
+    """The entry points of :data:`EXPORTS` as attributes (``covariances``,
+    ``predict_many``, ``process_batch``, ``record_states``, ``snapshot``) and ``kind``:
+    ``'aot'`` or ``'jit'``."""
 
     def __init__(self, kind: str, functions: dict):
         self.kind = kind
@@ -108,7 +109,7 @@ class Kernels:
 
 def _checked(name: str, fn, spec):
     """``fn`` (a pycc entry point) behind a check of every argument against ``spec``."""
-    ret, args = spec
+    _, args = spec
 
     def call(*values):
         if len(values) != len(args):
@@ -186,19 +187,18 @@ def load_kernels(kind: str | None = None) -> Kernels | None:
                               f'compiler present')
     try:
         from herd_ros.ingest import collar_kernels
-    except ImportError:
-        if kind == 'jit':
+    except ModuleNotFoundError as exc:
+        if kind == 'jit' or exc.name != 'numba':
             raise
         return None
     return Kernels('jit', {name: getattr(collar_kernels, name) for name in EXPORTS})
 
 
 def compiler(output_dir: str | None = None):
-    """A ``numba.pycc.CC`` for the extension: every entry point of
-    :data:`EXPORTS` with its signature, and
-    ``source_digest() -> int64``, the :func:`source_digest` of the sources compiled.
-    ``setup.py`` turns it into an extension (``CC.distutils_extension``); tests compile it
-    into a temporary directory (``CC.compile``)."""
+    """A ``numba.pycc.CC`` for the extension: every entry point of :data:`EXPORTS` with its
+    signature, and ``source_digest() -> int64``, the :func:`source_digest` of the sources
+    compiled. ``setup.py`` turns it into an extension (``CC.distutils_extension``); tests
+    compile it into a temporary directory (``CC.compile``)."""
     with warnings.catch_warnings():         # pycc is "pending deprecation" (no replacement)
         warnings.simplefilter('ignore')
         from numba.pycc import CC
