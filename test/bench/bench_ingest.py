@@ -95,7 +95,7 @@ def whole_processes(repeats):
 
 
 def core(repeats, n=1000, seconds=3600):
-    from herd_ros.ingest.collar_bank import CollarBank
+    from herd_ros.ingest.collar_bank import KERNELS, CollarBank
     from herd_ros.ingest.collar_filter import FilterParams
 
     rng = np.random.default_rng(0)
@@ -122,9 +122,9 @@ def core(repeats, n=1000, seconds=3600):
             bank.process(idx[sl], t[sl], p[sl, 0], p[sl, 1], status[sl], R)
         times.append(time.perf_counter() - t0)
     med = statistics.median(times)
-    print(f'core alone (CollarBank: covariances + filter), {len(t)} fixes ({n} collars x '
-          f'{seconds / 3600:g} h at 1 Hz), median of {repeats}: {med:.2f} s = '
-          f'{len(t) / med:,.0f} fixes/s')
+    print(f'core alone (CollarBank: covariances + filter, kernels: {KERNELS.kind}), '
+          f'{len(t)} fixes ({n} collars x {seconds / 3600:g} h at 1 Hz), median of {repeats}: '
+          f'{med:.2f} s = {len(t) / med:,.0f} fixes/s')
 
 
 def in_process(quick):
