@@ -325,6 +325,11 @@ def test_same_snapshots_as_the_offline_path(ros, console_script, tmp_path, topic
             assert int(values['unknown_collar_fixes']) == 1
             assert values['last_unknown_frame'] == 'cow_x'
             assert int(values['message_errors']) == 1
+            # each problem said once, in the report of the period it happened in
+            warned = ' | '.join(m for level, m, _ in collars.diag['gps_ingest']
+                                if level == WARN)
+            assert warned.count('1 fix of unknown collars dropped') == 1, warned
+            assert warned.count('1 bad message dropped') == 1, warned
             assert proc.poll() is None
     finally:
         rc = stop(proc)

@@ -288,7 +288,7 @@ class GpsIngest(Node):
         self.last_unknown_frame = ''
         self.clock_restarts = 0
         self.ticks_published = 0
-        self._errors_reported = 0
+        self._errors_reported = (0, 0)     # message_errors, unknown_collar_fixes
         if cfg.odom_topic:
             shared = self.create_publisher(Odometry, cfg.odom_topic, cfg.odom_depth).publish
             self._odom_publish = [shared] * len(cfg.agents)
@@ -586,9 +586,12 @@ class GpsIngest(Node):
             self._statuses[i] = refresh_status(self._statuses[i], f'gps_ingest: {agent}',
                                                level, message, values, hardware_id=agent)
             statuses.append(self._statuses[i])
-        errors = self.message_errors + self.unknown_collar_fixes
-        errors_now = errors > self._errors_reported
-        self._errors_reported = errors
+        new_bad = self.message_errors - self._errors_reported[0]
+        new_unknown = self.unknown_collar_fixes - self._errors_reported[1]
+        self._errors_reported = (self.message_errors, self.unknown_collar_fixes)
+        problems = ([f'{new_bad} bad message{"s" * (new_bad > 1)} dropped'] if new_bad
+                    else []) + ([f'{new_unknown} fix{"es" * (new_unknown > 1)} of unknown '
+                                 f'collars dropped'] if new_unknown else [])
         totals = self.bank.counters.sum(axis=0)
         node_values = {'herd_time': herd_time, 'ticks_published': self.ticks_published,
                        'fixes': int(totals[:-1].sum()) + sum(self.rejected_future.values()),
@@ -601,9 +604,8 @@ class GpsIngest(Node):
                        'datum': ('waiting for the first valid fix' if self.datum is None
                                  else ', '.join(f'{v:.9f}' for v in self.datum))}
         statuses.append(diagnostic_status(
-            'gps_ingest', WARN if errors_now else OK,
-            ('bad messages dropped' if self.message_errors else 'fixes of unknown collars '
-             'dropped') if errors_now else
+            'gps_ingest', WARN if problems else OK,
+            ('; '.join(problems) + ' since the last report') if problems else
             f'{n} collars' + (f', statuses of {share} per period in turn' if share < n else ''),
             node_values))
         self.diag_pub.publish(diagnostic_array(self, statuses))
