@@ -80,9 +80,8 @@ def aot_kernels(tmp_path_factory):
 def kernels(request, monkeypatch):
     """The test runs once with each compilation of the collar kernels: numba's JIT and the
     ahead-of-time extension (:mod:`herd_ros.ingest.aot`)."""
-    from herd_ros.ingest import aot, collar_bank, herd_clock
+    from herd_ros.ingest import aot, collar_bank
     chosen = (aot.load_kernels('jit') if request.param == 'jit'
               else request.getfixturevalue('aot_kernels'))
-    monkeypatch.setattr(collar_bank, 'KERNELS', chosen)
-    monkeypatch.setattr(herd_clock, 'KERNELS', chosen)
+    monkeypatch.setattr(collar_bank, 'KERNELS', chosen)     # the herd clock's too
     return chosen

@@ -11,10 +11,9 @@ node: the same filter, the same gates and the same reacquisition, with
 * the state of N collars in arrays: ``t`` (N,), ``x`` (N, 4), ``P`` (N, 4, 4), counters
   (N, 8) and the open candidate chains (N, 4 chains, L fixes);
 * one compiled loop (:mod:`herd_ros.ingest.collar_kernels`) over a batch of fixes in
-  arrival order. The loop cannot be
-  vectorised across fixes (each fix of a collar starts from the state the previous one
-  left) and branches per fix (checks, chains, adoption); every step in it is the 2 × 2 /
-  4 × 4 algebra of the reference written out in scalars;
+  arrival order. The loop cannot be vectorised across fixes (each fix of a collar starts
+  from the state the previous one left) and branches per fix (checks, chains, adoption);
+  every step in it is the 2 × 2 / 4 × 4 algebra of the reference written out in scalars;
 * the measurement covariances ``R`` of the whole batch computed beforehand, vectorised, in
   closed form (:func:`measurement_covariances`).
 
@@ -65,7 +64,7 @@ def measurement_covariances(cov_type, cov9, default_position_std: float,
     c = np.ascontiguousarray(cov9, dtype=float).reshape(len(cov_type), 9)
     r = np.empty((len(cov_type), 2, 2))
     KERNELS.covariances(cov_type, c, float(default_position_std) ** 2,
-                 float(position_std_floor) ** 2, r)
+                        float(position_std_floor) ** 2, r)
     return r
 
 
@@ -202,14 +201,15 @@ class CollarBank:
                                                    out.P, out.segment)
         p = self.params
         gate = p.gate_threshold
-        KERNELS.process_batch(collar, stamp, east, north, status, R,
-                       self.t, self.x, self.P, self.ever, self.last_position_fix,
-                       self.last_report, self.counters, self.n_candidates, self.cand_jump,
-                       self.cand_len, self.cand_t, self.cand_z, self.cand_r,
-                       float(p.accel_std), float(p.velocity_tau), float(p.max_speed),
-                       float(p.cruise_speed), float(p.sprint_s), gate, math.sqrt(gate),
-                       float(p.initial_velocity_std or p.max_speed),
-                       int(p.confirm_fixes), int(p.reacquire_fixes),
-                       int(p.confirm_fixes_lost), float(p.reinit_after_gap),
-                       out_code, out_d2, out_x, out_P, out_seg)
+        KERNELS.process_batch(
+            collar, stamp, east, north, status, R,
+            self.t, self.x, self.P, self.ever, self.last_position_fix, self.last_report,
+            self.counters, self.n_candidates, self.cand_jump, self.cand_len, self.cand_t,
+            self.cand_z, self.cand_r,
+            float(p.accel_std), float(p.velocity_tau), float(p.max_speed),
+            float(p.cruise_speed), float(p.sprint_s), gate, math.sqrt(gate),
+            float(p.initial_velocity_std or p.max_speed),
+            int(p.confirm_fixes), int(p.reacquire_fixes),
+            int(p.confirm_fixes_lost), float(p.reinit_after_gap),
+            out_code, out_d2, out_x, out_P, out_seg)
         return out

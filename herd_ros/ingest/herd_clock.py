@@ -31,8 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from herd_ros.ingest.collar_bank import AVAILABLE as _COMPILED, KERNELS
-from herd_ros.ingest.collar_bank import predict_states as _compiled
+from herd_ros.ingest import collar_bank
 from herd_ros.ingest.collar_filter import CollarFilter, predict_state
 from herd_ros.trajectory import HerdTrajectory
 
@@ -40,8 +39,8 @@ from herd_ros.trajectory import HerdTrajectory
 def predict_states(x, P, tau, accel_std, velocity_tau=0.0):
     """:func:`~herd_ros.ingest.collar_filter.predict_state` over many states: compiled
     (:func:`herd_ros.ingest.collar_bank.predict_states`) where the kernels are."""
-    if _COMPILED and np.ndim(x) == 2:
-        return _compiled(x, P, tau, accel_std, velocity_tau)
+    if collar_bank.AVAILABLE and np.ndim(x) == 2:
+        return collar_bank.predict_states(x, P, tau, accel_std, velocity_tau)
     return predict_state(x, P, tau, accel_std, velocity_tau)
 
 
@@ -377,10 +376,10 @@ class BatchHerdClock:
         keep = np.asarray(accepted, bool) & finite
         rows = np.flatnonzero(keep)
         while len(rows):
-            done = KERNELS.record_states(collar[rows], stamp[rows],
-                                         np.ascontiguousarray(x[rows]),
-                                         np.ascontiguousarray(P[rows]), self.next_tick,
-                                         self.count, self.rt, self.rx, self.rP)
+            done = collar_bank.KERNELS.record_states(
+                collar[rows], stamp[rows], np.ascontiguousarray(x[rows]),
+                np.ascontiguousarray(P[rows]), self.next_tick, self.count, self.rt, self.rx,
+                self.rP)
             if done == len(rows):
                 break
             self._grow()
@@ -427,8 +426,9 @@ class BatchHerdClock:
         P = np.empty((n, 4, 4))
         stale = np.empty(n, np.bool_)
         init = np.empty(n, np.bool_)
-        KERNELS.snapshot(float(tick), self.count, self.rt, self.rx, self.rP, self.accel_std,
-                  self.velocity_tau, self.stale_after, x, P, stale, init)
+        collar_bank.KERNELS.snapshot(float(tick), self.count, self.rt, self.rx, self.rP,
+                                     self.accel_std, self.velocity_tau, self.stale_after, x,
+                                     P, stale, init)
         return HerdSnapshot(float(tick), list(self.agents), x[:, :2].copy(), x[:, 2:].copy(),
                             P[:, :2, :2].copy(), stale, init)
 
