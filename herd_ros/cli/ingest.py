@@ -79,6 +79,7 @@ def run(args) -> int:
     from herd_ros.trajectory import write_trajectory_csv
 
     from herd_ros.data_sources import is_trajectory_csv, planar_fixes_from_runs
+    from herd_ros.ingest.pipeline import collar_spans
 
     planar = args.format == 'auto' and is_trajectory_csv(Path(args.data))
     if planar:                      # irregular planar fixes (RTLS, UWB): no geodesy
@@ -99,10 +100,11 @@ def run(args) -> int:
         print(f'datum: lat {lat:.9f} lon {lon:.9f} alt {alt:.3f} '
               f'({"given" if args.datum else "first valid fix"})')
     dt_how = 'given' if args.dt else 'from the fix intervals'
-    print(f'clock: {traj.n_steps} ticks of {traj.meta["dt"]:g} s ({dt_how}) for '
-          f'{traj.n_agents} agents (trimmed {lead} leading, {trail} trailing); missing '
-          f'(stale) agent-ticks: {int(stale.sum())} of {stale.size}, stale after '
-          f'{traj.meta["filter_params"].stale_after:g} s')
-    print(format_counters(traj.meta['counters']))
+    print(f'clock: {traj.n_steps} ticks of {traj.meta["dt"]:g} s ({dt_how}), the union of '
+          f'the {traj.n_agents} collars\' spans ({lead} empty leading, {trail} empty '
+          f'trailing ticks cut); stale agent-ticks (NaN: before a collar\'s first fix, '
+          f'after its last, or silent longer than '
+          f'{traj.meta["filter_params"].stale_after:g} s): {int(stale.sum())} of {stale.size}')
+    print(format_counters(traj.meta['counters'], collar_spans(traj)))
     print(f'wrote {args.output} (smoother: {args.smoother})')
     return 0

@@ -18,9 +18,10 @@ Steps (each a module of :mod:`herd_ros.ingest`):
    rejections counted per reason.
 4. **Clock** (:mod:`~herd_ros.ingest.herd_clock`): ticks k·dt; each agent's causal estimate,
    NaN where the collar is stale (no accepted fix within ``stale_after``: never an
-   extrapolation across a silence). The trajectory is trimmed to the ticks from the first to
-   the last where at least two agents have a position; late starts, early ends and silences
-   inside stay NaN (flagged in ``meta['stale']``), and the fit skips them.
+   extrapolation across a silence). The clock covers the union of the collars' spans: it is
+   trimmed only to the ticks from the first to the last where *any* agent has a position, so
+   no collar loses a fix; late starts, early ends and silences stay NaN (flagged in
+   ``meta['stale']``), and the fit skips them.
 5. **Smoother** (:mod:`~herd_ros.ingest.smoothing`): ``'none'`` (causal filter, identical to
    what the ``gps_ingest`` node publishes), ``'rts'`` or ``'fir'``.
 """
@@ -292,8 +293,9 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
             table, :func:`planar_fixes`).
         smoother: ``'none'``, ``'rts'`` or ``'fir'``.
         agents: agent order (default: sorted ids, independent of file or bag order).
-        trim: cut to the ticks where every agent has an estimate and drop trailing stale
-            ticks (see the module docstring); False keeps the whole clock with NaN.
+        trim: cut the leading and trailing ticks where no agent has an estimate (the clock
+            covers the union of the collars' spans; see the module docstring); False keeps
+            the whole clock with NaN.
         fir_taps, fir_sigma: the FIR's n and σ (steps).
         engine: ``'bank'`` (compiled, default) or ``'filterpy'`` (the reference); see
             :func:`run_filters`.
@@ -342,11 +344,9 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     traj = resample_timelines(timelines, ticks, agents)
     lead = trail = 0
     if trim:
-        present = np.isfinite(traj.positions[..., 0]).sum(axis=1)
-        if not (present >= min(2, len(agents))).any():
-            raise HerdInputError('the agents have no time in common: no tick where two '
-                                 'agents have a fresh fix')
-        ok = present >= min(2, len(agents))
+        ok = np.isfinite(traj.positions[..., 0]).any(axis=1)
+        if not ok.any():
+            raise HerdInputError('no agent has a fresh position at any tick')
         lead = int(np.argmax(ok))
         last = len(ticks) - 1 - int(np.argmax(ok[::-1]))
         trail = len(ticks) - 1 - last
@@ -383,12 +383,34 @@ def _summary(counter: dict) -> str:
     return ', '.join(f'{k} {v}' for k, v in counter.items() if v)
 
 
-def format_counters(counters: dict) -> str:
-    """A small table of per-agent counters (rows: agents, columns: :data:`COUNTERS`)."""
+def collar_spans(traj: HerdTrajectory) -> dict:
+    """Per agent: (first tick, last tick, ticks with a position) of its track on the clock,
+    times relative to the clock's start (s); (nan, nan, 0) for an agent never seen."""
+    out = {}
+    t0 = traj.times[0] if len(traj.times) else 0.0
+    for i, a in enumerate(traj.agents):
+        have = np.flatnonzero(np.isfinite(traj.positions[:, i, 0]))
+        if len(have):
+            out[a] = (float(traj.times[have[0]] - t0), float(traj.times[have[-1]] - t0),
+                      int(len(have)))
+        else:
+            out[a] = (np.nan, np.nan, 0)
+    return out
+
+
+def format_counters(counters: dict, spans: dict | None = None) -> str:
+    """A small table of per-agent counters (rows: agents, columns: :data:`COUNTERS`), with
+    each agent's span on the clock (:func:`collar_spans`: from, to in hours, ticks with a
+    position) when ``spans`` is given."""
     names = list(COUNTERS)
     short = [c.replace('rejected_', '') for c in names]
     width = max([len('agent')] + [len(a) for a in counters])
-    lines = ['  '.join([f'{"agent":<{width}}'] + [f'{s:>8}' for s in short])]
+    extra = ['from_h', 'to_h', 'ticks'] if spans is not None else []
+    lines = ['  '.join([f'{"agent":<{width}}'] + [f'{s:>8}' for s in short + extra])]
     for agent, c in counters.items():
-        lines.append('  '.join([f'{agent:<{width}}'] + [f'{c.get(k, 0):>8}' for k in names]))
+        row = [f'{agent:<{width}}'] + [f'{c.get(k, 0):>8}' for k in names]
+        if spans is not None:
+            lo, hi, n = spans.get(agent, (np.nan, np.nan, 0))
+            row += [f'{lo / 3600:>8.2f}', f'{hi / 3600:>8.2f}', f'{n:>8}']
+        lines.append('  '.join(row))
     return '\n'.join(lines)
