@@ -403,3 +403,94 @@ def _fmt(fmt, values):
     text = np.char.mod(fmt, values).astype(object)
     text[~np.isfinite(values)] = ''
     return text
+
+
+def duty_cycle_recorded_fixes(recorded: pd.DataFrame, *, seed: int = 0,
+                              model: CollarErrorModel | None = None) -> pd.DataFrame:
+    """A dense real recording seen through duty-cycled collars with real-collar faults.
+
+    Unlike :func:`simulate_collar_fixes`, which adds modelled noise to a true path, this
+    keeps the recording's own positions and noise: each collar gets its own schedule (random
+    phase, intervals drawn uniformly in ``model.fix_interval_range``), and at each scheduled
+    time takes the first recorded fix at or after it (none if the recording has nothing
+    before the next scheduled time). Then the faults of ``model`` are applied as in
+    :func:`simulate_collar_fixes`: silences, late starts and early ends drop fixes, outlier
+    bursts move runs of fixes to a wrong place (flag ``burst``), duplicates repeat a fix
+    (flag ``duplicate``). Measurement noise, multipath, NO_FIX and dropouts of the model are
+    not added: the recording has its own.
+
+    Args:
+        recorded: planar fixes ``time, agent, x, y`` (metres), any order; rows with
+            non-finite values are ignored.
+        seed: seed of the random generator; equal seeds give equal tables.
+        model: the faults (default :meth:`CollarErrorModel.real_collar`).
+
+    Returns:
+        ``time, agent, x, y, true_x, true_y, burst, duplicate``, sorted by time then agent;
+        ``true_x, true_y`` are the recorded positions (before any burst offset).
+    """
+    model = CollarErrorModel.real_collar() if model is None else model
+    need = [c for c in ('time', 'agent', 'x', 'y') if c not in recorded.columns]
+    if need:
+        raise HerdInputError(f'duty_cycle_recorded_fixes: the recording lacks column(s) '
+                             f'{", ".join(need)}')
+    rec = recorded[np.isfinite(recorded[['time', 'x', 'y']].to_numpy(float)).all(axis=1)]
+    if model.fix_interval_range is None:
+        lo = hi = float(model.fix_interval)
+    else:
+        lo, hi = (float(v) for v in model.fix_interval_range)
+    rng = np.random.default_rng([seed, 2])
+    t_all = rec['time'].to_numpy(float)
+    start, end = float(t_all.min()), float(t_all.max())
+    span = end - start
+    agents = sorted(rec['agent'].astype(str).unique())
+    late = set(rng.permutation(agents)[:int(np.ceil(model.late_start_fraction * len(agents)
+                                                    - 1e-9))])
+    early = set(rng.permutation(agents)[:int(np.ceil(model.early_end_fraction * len(agents)
+                                                     - 1e-9))])
+    parts = []
+    for agent in agents:
+        g = rec[rec['agent'].astype(str) == agent].sort_values('time', kind='stable')
+        t = g['time'].to_numpy(float)
+        xy = g[['x', 'y']].to_numpy(float)
+        n_sched = int(np.ceil(span / lo)) + 2
+        sched = start + rng.uniform(0.0, hi) + np.cumsum(
+            np.r_[0.0, rng.uniform(lo, hi, n_sched - 1)])
+        sched = sched[sched <= end]
+        k = np.searchsorted(t, sched, side='left')
+        nxt = np.r_[sched[1:], np.inf]
+        ok = k < len(t)
+        ok[ok] &= t[k[ok]] < nxt[ok]
+        k = np.unique(k[ok])
+        tk, pk = t[k], xy[k].copy()
+        keep = np.ones(len(k), dtype=bool)
+        n_sil = rng.poisson(model.silence_rate * span)
+        for s0, length in zip(rng.uniform(start, end, n_sil),
+                              rng.uniform(*model.silence_duration, n_sil)):
+            keep &= ~((tk >= s0) & (tk < s0 + length))
+        if agent in late:
+            keep &= tk >= start + min(rng.uniform(*model.late_start), 0.4 * span)
+        if agent in early:
+            keep &= tk <= end - min(rng.uniform(*model.early_end), 0.4 * span)
+        tk, pk = tk[keep], pk[keep]
+        true = pk.copy()
+        burst = np.zeros(len(tk), dtype=bool)
+        for k0 in np.flatnonzero(rng.random(len(tk)) < model.burst_rate):
+            length = int(rng.integers(int(model.burst_fixes[0]), int(model.burst_fixes[1]) + 1))
+            size = rng.uniform(*model.burst_offset)
+            ang = rng.uniform(-np.pi, np.pi)
+            rows = np.arange(k0, min(k0 + length, len(tk)))
+            centre = size * np.array([np.cos(ang), np.sin(ang)])
+            pk[rows] = true[rows] + centre + model.burst_scatter * size / np.sqrt(2.0) \
+                * rng.standard_normal((len(rows), 2))
+            burst[rows] = True
+        parts.append(pd.DataFrame({'time': tk, 'agent': agent, 'x': pk[:, 0], 'y': pk[:, 1],
+                                   'true_x': true[:, 0], 'true_y': true[:, 1],
+                                   'burst': burst, 'duplicate': False}))
+    table = pd.concat(parts, ignore_index=True)
+    dup = table[rng.random(len(table)) < model.duplicate_probability].copy()
+    dup['duplicate'] = True
+    table = pd.concat([table, dup], ignore_index=True)
+    order = np.lexsort((table['duplicate'].to_numpy(), table['agent'].to_numpy(),
+                        table['time'].to_numpy()))
+    return table.iloc[order].reset_index(drop=True)

@@ -1,0 +1,88 @@
+"""How well a causal track knows where an animal is, against the last raw fix.
+
+The measure of issue 25: at every fix of a collar, where did the track say the animal was
+just before that fix arrived (its last pose strictly before the fix's stamp), and where was
+the last raw fix before it (what a user has with no filter at all)? Both are scored by their
+distance to the new fix::
+
+    d_track(k) = ‖ track(t⁻_k) − z_k ‖,   d_raw(k) = ‖ z_{k−1} − z_k ‖
+
+summarised by the median, 90th and 99th percentiles, the RMS and the share beyond 100 m
+(:func:`summarise`). A fix is scored only where both exist (a collar's first fix has no
+predecessor; the track has no pose before its first accepted fix). The ``targets`` mask
+picks which fixes are scored (e.g. leave out the fixes of an injected outlier burst, which
+are not where the animal is); the predecessors are always every raw fix, bursts included,
+as a user without a filter would have them.
+
+Plain numpy; used by the tracking benchmark and its tests.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+#: The share of distances beyond this many metres is reported.
+FAR_M = 100.0
+STATS = ('median', 'p90', 'p99', 'rms', 'beyond_100m')
+
+
+def summarise(d) -> dict:
+    """Median, p90, p99, RMS (m) and share (fraction) beyond :data:`FAR_M` of distances."""
+    d = np.asarray(d, dtype=float)
+    d = d[np.isfinite(d)]
+    if not len(d):
+        return {k: float('nan') for k in STATS} | {'n': 0}
+    return {'median': float(np.median(d)), 'p90': float(np.percentile(d, 90)),
+            'p99': float(np.percentile(d, 99)), 'rms': float(np.sqrt(np.mean(d ** 2))),
+            'beyond_100m': float(np.mean(d > FAR_M)), 'n': int(len(d))}
+
+
+def last_pose_before(times, positions, stamps):
+    """The last finite pose of a track (``times`` (T,), ``positions`` (T, 2)) strictly
+    before each stamp; NaN where there is none."""
+    ok = np.isfinite(positions).all(axis=1)
+    t, p = np.asarray(times, float)[ok], positions[ok]
+    k = np.searchsorted(t, stamps, side='left') - 1
+    out = np.full((len(stamps), 2), np.nan)
+    have = k >= 0
+    out[have] = p[k[have]]
+    return out
+
+
+def next_fix_distances(fixes: pd.DataFrame, track_times, track_positions, agents,
+                       targets=None) -> tuple[np.ndarray, np.ndarray]:
+    """(d_track, d_raw) at each scored fix (see the module docstring).
+
+    Args:
+        fixes: ``time, agent, x, y`` in the track's frame (metres).
+        track_times: (T,) the track's clock; ``track_positions`` (T, N, 2), NaN where the
+            track has no pose; ``agents`` its N agent ids.
+        targets: boolean mask over ``fixes`` rows that may be scored (default all).
+    """
+    targets = np.ones(len(fixes), dtype=bool) if targets is None else np.asarray(targets)
+    out_t, out_r = [], []
+    agent_col = fixes['agent'].astype(str).to_numpy()
+    for i, a in enumerate(agents):
+        rows = np.flatnonzero(agent_col == str(a))
+        g = fixes.iloc[rows]
+        order = np.argsort(g['time'].to_numpy(float), kind='stable')
+        t = g['time'].to_numpy(float)[order]
+        z = g[['x', 'y']].to_numpy(float)[order]
+        tg = targets[rows][order]
+        # the last raw fix strictly before each fix (a duplicate stamp is not "before")
+        k = np.searchsorted(t, t, side='left') - 1
+        raw = np.full_like(z, np.nan)
+        raw[k >= 0] = z[k[k >= 0]]
+        track = last_pose_before(track_times, track_positions[:, i], t)
+        ok = tg & np.isfinite(raw).all(axis=1) & np.isfinite(track).all(axis=1)
+        out_t.append(np.hypot(*(track[ok] - z[ok]).T))
+        out_r.append(np.hypot(*(raw[ok] - z[ok]).T))
+    return np.concatenate(out_t), np.concatenate(out_r)
+
+
+def tracking_table(fixes: pd.DataFrame, track_times, track_positions, agents,
+                   targets=None) -> dict:
+    """{'track': summarise(d_track), 'last_raw_fix': summarise(d_raw)} of
+    :func:`next_fix_distances`."""
+    d_t, d_r = next_fix_distances(fixes, track_times, track_positions, agents, targets)
+    return {'track': summarise(d_t), 'last_raw_fix': summarise(d_r)}
