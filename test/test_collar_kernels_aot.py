@@ -19,7 +19,8 @@ from herd_ros.ingest import aot
 def predict_args(n=3):
     x = np.zeros((n, 4))
     P = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
-    return [x, P, np.ones(n), 0.1, 0.0, np.empty((n, 4)), np.empty((n, 4, 4))]
+    return [x, P, np.ones(n), np.full(n, 0.1), np.zeros(n), np.empty((n, 4)),
+            np.empty((n, 4, 4))]
 
 
 def test_a_valid_call_predicts_as_the_motion_model(aot_kernels):

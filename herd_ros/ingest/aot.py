@@ -42,10 +42,12 @@ ENV = 'HERD_ROS_KERNELS'
 #: array ``(dtype, ndim, written)``, always C-contiguous; ``written`` marks the arrays the
 #: kernel writes into.
 EXPORTS = {
-    'covariances': ('void', (('i8', 1, False), ('f8', 2, False), 'f8', 'f8',
+    'covariances': ('void', (('i8', 1, False), ('f8', 2, False), ('f8', 1, False),
+                             ('f8', 1, False),
                              ('f8', 3, True))),
-    'predict_many': ('void', (('f8', 2, False), ('f8', 3, False), ('f8', 1, False), 'f8',
-                              'f8', ('f8', 2, True), ('f8', 3, True))),
+    'predict_many': ('void', (('f8', 2, False), ('f8', 3, False), ('f8', 1, False),
+                              ('f8', 1, False), ('f8', 1, False), ('f8', 2, True),
+                              ('f8', 3, True))),
     'process_batch': ('void', (
         # the batch: collar, stamp, east, north, status, R
         ('i8', 1, False), ('f8', 1, False), ('f8', 1, False), ('f8', 1, False),
@@ -56,9 +58,12 @@ EXPORTS = {
         ('f8', 1, True), ('f8', 1, True), ('i8', 2, True), ('i8', 1, True),
         ('b1', 2, True), ('i8', 2, True), ('f8', 3, True), ('f8', 4, True),
         ('f8', 5, True),
-        # accel_std, velocity_tau, max_speed, cruise_speed, sprint_s, gate, gate_sigma, v0,
-        # confirm, reacquire, confirm_lost, reinit_after_gap
-        'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'i8', 'i8', 'i8', 'f8',
+        # accel_std (N,), velocity_tau (N,), max_speed, cruise_speed, sprint_s, gate,
+        # gate_sigma, v0, confirm, reacquire, confirm_lost, reinit_after_gap
+        ('f8', 1, False), ('f8', 1, False), 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'i8', 'i8',
+        'i8', 'f8',
+        # walk_accel (<= 0: none), walk_tau, walk_prob
+        'f8', 'f8', 'f8',
         # out: code, d2, x, P, segment
         ('i1', 1, True), ('f8', 1, True), ('f8', 2, True), ('f8', 3, True),
         ('i8', 1, True))),
@@ -66,7 +71,8 @@ EXPORTS = {
                              ('f8', 3, False), 'f8', ('i8', 1, True), ('f8', 2, True),
                              ('f8', 3, True), ('f8', 4, True))),
     'snapshot': ('void', ('f8', ('i8', 1, False), ('f8', 2, False), ('f8', 3, False),
-                          ('f8', 4, False), 'f8', 'f8', 'f8', ('f8', 2, True),
+                          ('f8', 4, False), ('f8', 1, False), ('f8', 1, False), 'f8',
+                          ('f8', 2, True),
                           ('f8', 3, True), ('b1', 1, True), ('b1', 1, True))),
 }
 

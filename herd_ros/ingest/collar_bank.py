@@ -50,11 +50,13 @@ KERNELS = aot.load_kernels()
 AVAILABLE = KERNELS is not None
 
 
-def measurement_covariances(cov_type, cov9, default_position_std: float,
-                            position_std_floor: float) -> np.ndarray:
+def measurement_covariances(cov_type, cov9, default_position_std,
+                            position_std_floor) -> np.ndarray:
     """``R`` (M, 2, 2) of M fixes from their NavSatFix covariance type (M,) and
     ``position_covariance`` (M, 9): the rules of
-    :func:`~herd_ros.ingest.collar_filter.measurement_covariance`, vectorised.
+    :func:`~herd_ros.ingest.collar_filter.measurement_covariance`, vectorised
+    (``default_position_std``, ``position_std_floor``: one std, or (M,), each fix's
+    collar's).
 
     The floor ``R = V max(Λ, floor²) Vᵀ`` in closed form: with eigenvalues λ₁ ≤ λ₂ and
     the projector ``Π₁ = (A − λ₂ I)/(λ₁ − λ₂)`` on the first eigenvector,
@@ -63,22 +65,30 @@ def measurement_covariances(cov_type, cov9, default_position_std: float,
     cov_type = np.ascontiguousarray(cov_type, dtype=np.int64).reshape(-1)
     c = np.ascontiguousarray(cov9, dtype=float).reshape(len(cov_type), 9)
     r = np.empty((len(cov_type), 2, 2))
-    KERNELS.covariances(cov_type, c, float(default_position_std) ** 2,
-                        float(position_std_floor) ** 2, r)
+    d2 = _per(np.asarray(default_position_std, dtype=float) ** 2, len(cov_type))
+    f2 = _per(np.asarray(position_std_floor, dtype=float) ** 2, len(cov_type))
+    KERNELS.covariances(cov_type, c, d2, f2, r)
     return r
 
 
-def predict_states(x, P, tau, accel_std: float, velocity_tau: float = 0.0):
+def predict_states(x, P, tau, accel_std, velocity_tau=0.0):
     """:func:`~herd_ros.ingest.collar_filter.predict_state` for M states at once, compiled:
-    ``x`` (M, 4), ``P`` (M, 4, 4), ``tau`` (M,) -> (x⁻ (M, 4), P⁻ (M, 4, 4)). The herd
-    clock carries every collar's state to a tick with it."""
+    ``x`` (M, 4), ``P`` (M, 4, 4), ``tau`` (M,) -> (x⁻ (M, 4), P⁻ (M, 4, 4)); the motion
+    model one for all or per state ((M,) arrays). The herd clock carries every collar's
+    state to a tick with it."""
     x = np.ascontiguousarray(x, dtype=float).reshape(-1, 4)
     P = np.ascontiguousarray(P, dtype=float).reshape(-1, 4, 4)
     tau = np.ascontiguousarray(np.broadcast_to(np.asarray(tau, dtype=float), (len(x),)))
     xo = np.empty_like(x)
     Po = np.empty_like(P)
-    KERNELS.predict_many(x, P, tau, float(accel_std), float(velocity_tau), xo, Po)
+    KERNELS.predict_many(x, P, tau, _per(accel_std, len(x)), _per(velocity_tau, len(x)),
+                         xo, Po)
     return xo, Po
+
+
+def _per(value, n: int) -> np.ndarray:
+    """A scalar or (n,) value as a contiguous float (n,) array."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(value, dtype=float), (n,)))
 
 
 @dataclass
@@ -115,7 +125,10 @@ class CollarBank:
         batch.outcome, batch.x                  # per fix
         bank.t, bank.x, bank.P, bank.counters   # per collar, after the batch
 
-    ``params`` may be replaced between batches (the node's live parameters).
+    ``params`` may be replaced between batches (the node's live parameters). Each collar's
+    motion model and default measurement std are arrays, ``accel_std``, ``velocity_tau``
+    and ``position_std`` (n,), set from ``params`` and replaced per collar by a fitted
+    model (:meth:`set_motion`, :mod:`herd_ros.ingest.motion_fit`).
     """
 
     def __init__(self, n: int, params: FilterParams | None = None):
@@ -140,6 +153,21 @@ class CollarBank:
         self.cand_t = np.zeros((n, MAX_CANDIDATES, L))
         self.cand_z = np.zeros((n, MAX_CANDIDATES, L, 2))
         self.cand_r = np.zeros((n, MAX_CANDIDATES, L, 2, 2))
+        self.accel_std = np.full(n, float(self.params.accel_std))
+        self.velocity_tau = np.full(n, float(self.params.velocity_tau))
+        self.position_std = np.full(n, float(self.params.default_position_std))
+        self.position_floor = np.full(n, float(self.params.position_std_floor))
+
+    def set_motion(self, i, accel_std, velocity_tau, position_std=None, floor=None):
+        """Collar(s) ``i`` move by this model from their next fix on (``position_std``:
+        the std of their fixes without a covariance, ``floor`` the smallest std of any of
+        their fixes; None keeps them)."""
+        self.accel_std[i] = accel_std
+        self.velocity_tau[i] = velocity_tau
+        if position_std is not None:
+            self.position_std[i] = position_std
+        if floor is not None:
+            self.position_floor[i] = floor
 
     @staticmethod
     def warm_up():
@@ -166,10 +194,15 @@ class CollarBank:
         with np.errstate(invalid='ignore'):
             return ~(float(t) - self.t <= self.params.stale_after)
 
-    def measurement_covariances(self, cov_type, cov9) -> np.ndarray:
-        """``R`` (M, 2, 2) for a batch, with this bank's default std and floor."""
-        return measurement_covariances(cov_type, cov9, self.params.default_position_std,
-                                       self.params.position_std_floor)
+    def measurement_covariances(self, cov_type, cov9, collar=None) -> np.ndarray:
+        """``R`` (M, 2, 2) for a batch, with this bank's floor and default std (each
+        fix's collar's, given ``collar`` (M,); else ``params``')."""
+        if collar is None:
+            return measurement_covariances(cov_type, cov9, self.params.default_position_std,
+                                           self.params.position_std_floor)
+        collar = np.asarray(collar, dtype=np.int64)
+        return measurement_covariances(cov_type, cov9, self.position_std[collar],
+                                       self.position_floor[collar])
 
     def process(self, collar, stamp, east, north, status, R, *, keep_covariance=True,
                 out: FixBatch | None = None) -> FixBatch:
@@ -206,10 +239,12 @@ class CollarBank:
             self.t, self.x, self.P, self.ever, self.last_position_fix, self.last_report,
             self.counters, self.n_candidates, self.cand_jump, self.cand_len, self.cand_t,
             self.cand_z, self.cand_r,
-            float(p.accel_std), float(p.velocity_tau), float(p.max_speed),
+            self.accel_std, self.velocity_tau, float(p.max_speed),
             float(p.cruise_speed), float(p.sprint_s), gate, math.sqrt(gate),
             float(p.initial_velocity_std or p.max_speed),
             int(p.confirm_fixes), int(p.reacquire_fixes),
             int(p.confirm_fixes_lost), float(p.reinit_after_gap),
+            float(p.walk[0]) if p.walk is not None else 0.0,
+            float(p.walk[1]) if p.walk is not None else 0.0, float(p.walk_probability),
             out_code, out_d2, out_x, out_P, out_seg)
         return out

@@ -133,6 +133,15 @@ class FilterParams:
         reacquire_fixes: consistent fixes that confirm a candidate that began with a jump.
         confirm_fixes_lost: consistent fixes that start a lost (or new) track.
         reinit_after_gap: a gap (s) after which the track is lost (the old state is dropped).
+        walk_accel_std, walk_velocity_tau: a second, broader motion model (a walk) beside
+            the collar's own (fitted) one; None = none. The motion model is then a
+            two-component scale mixture of Q ("graze" with the own model, "walk" with
+            probability ``walk_probability``): each fix updates both components and the
+            posterior mixture is collapsed to its first two moments (GPB1, Bar-Shalom, Li
+            & Kirubarajan 2001, §11.6), and only a fix outside the gate of both is an
+            outlier. So a fitted model tight enough to average a resting animal's fixes
+            still follows a walk at once.
+        walk_probability: prior probability π_w of the walk component per fix.
     """
 
     accel_std: float = 0.2
@@ -145,10 +154,13 @@ class FilterParams:
     sprint_s: float = 60.0
     stale_after: float = 30.0
     initial_velocity_std: float | None = None
-    confirm_fixes: int = 3
+    confirm_fixes: int = 2
     reacquire_fixes: int = 12
     confirm_fixes_lost: int = 2
     reinit_after_gap: float = 300.0
+    walk_accel_std: float | None = None
+    walk_velocity_tau: float | None = None
+    walk_probability: float = 0.05
 
     def __post_init__(self):
         positive = ('accel_std', 'default_position_std', 'position_std_floor', 'max_speed',
@@ -173,6 +185,17 @@ class FilterParams:
         if self.initial_velocity_std is not None and not self.initial_velocity_std > 0:
             raise HerdInputError('filter parameter initial_velocity_std must be positive, '
                                  f'got {self.initial_velocity_std!r}')
+        if self.walk_accel_std is not None and not (np.isfinite(self.walk_accel_std)
+                                                    and self.walk_accel_std > 0):
+            raise HerdInputError('filter parameter walk_accel_std must be positive, got '
+                                 f'{self.walk_accel_std!r}')
+        if self.walk_velocity_tau is not None and not (np.isfinite(self.walk_velocity_tau)
+                                                       and self.walk_velocity_tau >= 0):
+            raise HerdInputError('filter parameter walk_velocity_tau must be >= 0, got '
+                                 f'{self.walk_velocity_tau!r}')
+        if not 0.0 < self.walk_probability < 1.0:
+            raise HerdInputError('filter parameter walk_probability must be in (0, 1), got '
+                                 f'{self.walk_probability!r}')
         for name in ('confirm_fixes', 'reacquire_fixes', 'confirm_fixes_lost'):
             if int(getattr(self, name)) < 1:
                 raise HerdInputError(f'filter parameter {name} must be >= 1, '
@@ -183,6 +206,15 @@ class FilterParams:
         """χ²₂ quantile of ``gate_probability``: the squared Mahalanobis gate (closed form:
         the χ² CDF with 2 degrees of freedom is ``1 − e^{−x/2}``, so ``x = −2 ln(1 − p)``)."""
         return float(-2.0 * math.log1p(-self.gate_probability))
+
+    @property
+    def walk(self) -> tuple[float, float] | None:
+        """(accel_std, velocity_tau) of the walk model, or None (see the attributes)."""
+        if self.walk_accel_std is None and self.walk_velocity_tau is None:
+            return None
+        return (self.accel_std if self.walk_accel_std is None else self.walk_accel_std,
+                self.velocity_tau if self.walk_velocity_tau is None
+                else self.walk_velocity_tau)
 
     def reach(self, tau):
         """``d_max(τ)`` (m): the farthest an animal travels in ``tau`` seconds (module
@@ -447,6 +479,19 @@ class CollarFilter:
         P_pred = F @ self.P @ F.T + Q
         y = z - x_pred[:2]
         d2 = float(y @ np.linalg.solve(P_pred[:2, :2] + r, y))
+        gate_d2 = d2
+        walk = None
+        if p.walk is not None:
+            # the walk component of the motion mixture (FilterParams.walk)
+            Fw = transition(tau, p.walk[1])
+            Qw = process_noise(tau, p.walk[0], p.walk[1])
+            xw = Fw @ self.x
+            Pw = Fw @ self.P @ Fw.T + Qw
+            yw = z - xw[:2]
+            Sw = Pw[:2, :2] + r
+            d2w = float(yw @ np.linalg.solve(Sw, yw))
+            walk = (xw, Pw, Sw, d2w)
+            gate_d2 = min(d2, d2w)          # an outlier under both components
         # a fix that continues an open chain better than it fits the track belongs to the
         # chain: a burst cannot make itself plausible by lasting long enough for the
         # track's envelope and gate to grow
@@ -456,18 +501,44 @@ class CollarFilter:
                 return self._candidate_fix(stamp, z, r, 'speed' if cand.jump else 'gate',
                                            cand.jump, 'continues a chain of rejected fixes',
                                            d2=d2, chain=cand)
-        if d2 > self._gate:
+        if gate_d2 > self._gate:
             return self._candidate_fix(stamp, z, r, 'gate', False,
-                                       f'Mahalanobis distance² {d2:.1f} exceeds the '
+                                       f'Mahalanobis distance² {gate_d2:.1f} exceeds the '
                                        f'{p.gate_probability:g} gate {self._gate:.2f}', d2=d2)
-        self.kf.predict(F=F, Q=Q)
-        self.kf.update(z, R=r)
+        if walk is None:
+            self.kf.predict(F=F, Q=Q)
+            self.kf.update(z, R=r)
+        else:
+            self._mixture_update(z, r, x_pred, P_pred, P_pred[:2, :2] + r, d2, *walk)
         self.t = stamp
         self.candidates.clear()
         self.counters['accepted'] += 1
         return FixResult(True, 'accepted', '', d2)
 
     # -- internals ------------------------------------------------------------------------
+    def _mixture_update(self, z, r, xg, Pg, Sg, d2g, xw, Pw, Sw, d2w):
+        """GPB1 step of the graze/walk mixture (FilterParams.walk): each component's
+        Kalman update (Joseph form, as filterpy), weights ∝ π_j N(y_j; 0, S_j), the mixture
+        collapsed to its mean and covariance (Bar-Shalom, Li & Kirubarajan 2001,
+        eq. 11.6.6-7)."""
+        pw = self.params.walk_probability
+        lw = ((math.log(pw) - 0.5 * math.log(np.linalg.det(Sw)) - 0.5 * d2w)
+              - (math.log1p(-pw) - 0.5 * math.log(np.linalg.det(Sg)) - 0.5 * d2g))
+        ww = 1.0 / (1.0 + math.exp(-lw)) if lw > -700.0 else 0.0
+        parts = []
+        H = np.zeros((2, 4))
+        H[0, 0] = H[1, 1] = 1.0
+        for x, P, S in ((xg, Pg, Sg), (xw, Pw, Sw)):
+            K = P @ H.T @ np.linalg.inv(S)
+            A = np.eye(4) - K @ H
+            parts.append((x + K @ (z - x[:2]), A @ P @ A.T + K @ r @ K.T))
+        w = (1.0 - ww, ww)
+        x = w[0] * parts[0][0] + w[1] * parts[1][0]
+        P = sum(wj * (Pj + np.outer(xj - x, xj - x)) for wj, (xj, Pj) in zip(w, parts))
+        self.kf.x = x.reshape(4, 1)
+        self.kf.P = P
+
+
     def _initialise(self, stamp, z, r):
         self.kf.x = np.array([[z[0]], [z[1]], [0.0], [0.0]])
         P = np.zeros((4, 4))

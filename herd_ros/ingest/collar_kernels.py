@@ -31,7 +31,8 @@ def _jit(fn):
 
 @_jit
 def covariances(cov_type, c, d2, f2, r):
-    """The loop of :func:`measurement_covariances`."""
+    """The loop of :func:`measurement_covariances` (``d2``, ``f2`` (M,): each fix's default
+    variance and floor, its collar's)."""
     for m in range(cov_type.shape[0]):
         t = cov_type[m]
         known = (t != 0 and math.isfinite(c[m, 0]) and math.isfinite(c[m, 1])
@@ -41,20 +42,20 @@ def covariances(cov_type, c, d2, f2, r):
             cc = c[m, 4]
             b = 0.0 if t == 2 else 0.5 * (c[m, 1] + c[m, 3])
         else:
-            a = d2
-            cc = d2
+            a = d2[m]
+            cc = d2[m]
             b = 0.0
         mid = 0.5 * (a + cc)
         d = math.hypot(0.5 * (a - cc), b)
         l1 = mid - d
         l2 = mid + d
-        if l1 >= f2:
+        if l1 >= f2[m]:
             r[m, 0, 0] = a
             r[m, 1, 1] = cc
             r[m, 0, 1] = r[m, 1, 0] = b
             continue
-        L1 = max(l1, f2)
-        L2 = max(l2, f2)
+        L1 = max(l1, f2[m])
+        L2 = max(l2, f2[m])
         w = (L1 - L2) / (-2.0 * d) if d > 0 else 0.0       # (L1 − L2)/(λ₁ − λ₂)
         r[m, 0, 0] = L2 + w * (a - l2)
         r[m, 1, 1] = L2 + w * (cc - l2)
@@ -139,8 +140,9 @@ def _predict(x, P, tau, accel_std, velocity_tau, xo, Po):
 
 @_jit
 def predict_many(x, P, tau, accel_std, velocity_tau, xo, Po):
+    """Each state predicted over its own interval with its own motion model (arrays)."""
     for m in range(x.shape[0]):
-        _predict(x[m], P[m], tau[m], accel_std, velocity_tau, xo[m], Po[m])
+        _predict(x[m], P[m], tau[m], accel_std[m], velocity_tau[m], xo[m], Po[m])
 
 
 @_jit
@@ -174,6 +176,31 @@ def _update(x, P, z0, z1, R):
     for i in range(4):
         for j in range(4):
             P[i, j] += KR[i, 0] * K[j, 0] + KR[i, 1] * K[j, 1]
+
+
+@_jit
+def _mahalanobis2(xp, Pp, z0, z1, r):
+    """(yᵀ S⁻¹ y, det S) of the innovation y = z − x⁻[:2], S = P⁻[:2, :2] + R."""
+    y0 = z0 - xp[0]
+    y1 = z1 - xp[1]
+    s00 = Pp[0, 0] + r[0, 0]
+    s01 = Pp[0, 1] + r[0, 1]
+    s10 = Pp[1, 0] + r[1, 0]
+    s11 = Pp[1, 1] + r[1, 1]
+    det = s00 * s11 - s01 * s10
+    return (y0 * (s11 * y0 - s01 * y1) + y1 * (s00 * y1 - s10 * y0)) / det, det
+
+
+@_jit
+def _collapse(xa, Pa, xb, Pb, wa, wb, xo, Po):
+    """Moment matching of a two-component mixture (Bar-Shalom, Li & Kirubarajan 2001,
+    eq. 11.6.6-7): x = Σ w_j x_j, P = Σ w_j (P_j + (x_j − x)(x_j − x)ᵀ)."""
+    for i in range(4):
+        xo[i] = wa * xa[i] + wb * xb[i]
+    for i in range(4):
+        for j in range(4):
+            Po[i, j] = (wa * (Pa[i, j] + (xa[i] - xo[i]) * (xa[j] - xo[j]))
+                        + wb * (Pb[i, j] + (xb[i] - xo[i]) * (xb[j] - xo[j])))
 
 
 @_jit
@@ -277,10 +304,15 @@ def process_batch(collar, stamp, east, north, status, R,
                    cand_len, cand_t, cand_z, cand_r,
                    accel_std, velocity_tau, max_speed, cruise_speed, sprint_s, gate,
                    gate_sigma, v0, confirm, reacquire, confirm_lost, reinit_after_gap,
+                   walk_accel, walk_tau, walk_prob,
                    out_code, out_d2, out_x, out_P, out_seg):
-    """CollarFilter.update for each fix of the batch, in order (see its comments)."""
+    """CollarFilter.update for each fix of the batch, in order (see its comments);
+    ``accel_std`` and ``velocity_tau`` are per collar (N,); ``walk_accel`` ≤ 0 = no walk
+    component (else the motion mixture of FilterParams.walk, prior weight ``walk_prob``)."""
     xp = np.empty(4)
     Pp = np.empty((4, 4))
+    xw = np.empty(4)
+    Pw = np.empty((4, 4))
     keep_P = out_P.shape[0] > 0
     for m in range(collar.shape[0]):
         i = collar[m]
@@ -327,7 +359,7 @@ def process_batch(collar, stamp, east, north, status, R,
                 else:
                     first = not ever[i]
                     _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
-                           cand_z, cand_r, accel_std, velocity_tau, v0)
+                           cand_z, cand_r, accel_std[i], velocity_tau[i], v0)
                     if first:
                         code = ACCEPTED
                     else:
@@ -347,15 +379,16 @@ def process_batch(collar, stamp, east, north, status, R,
                                     cand_t, cand_z, cand_r, max_speed, cruise_speed,
                                     sprint_s, gate_sigma)
                 else:
-                    _predict(xi, Pi, tau, accel_std, velocity_tau, xp, Pp)
+                    _predict(xi, Pi, tau, accel_std[i], velocity_tau[i], xp, Pp)
+                    d2, det = _mahalanobis2(xp, Pp, z0, z1, r)
+                    gate_d2 = d2
+                    if walk_accel > 0.0:
+                        # the walk component of the motion mixture (FilterParams.walk)
+                        _predict(xi, Pi, tau, walk_accel, walk_tau, xw, Pw)
+                        d2w, detw = _mahalanobis2(xw, Pw, z0, z1, r)
+                        gate_d2 = min(d2, d2w)      # an outlier under both components
                     y0 = z0 - xp[0]
                     y1 = z1 - xp[1]
-                    s00 = Pp[0, 0] + r[0, 0]
-                    s01 = Pp[0, 1] + r[0, 1]
-                    s10 = Pp[1, 0] + r[1, 0]
-                    s11 = Pp[1, 1] + r[1, 1]
-                    det = s00 * s11 - s01 * s10
-                    d2 = (y0 * (s11 * y0 - s01 * y1) + y1 * (s00 * y1 - s10 * y0)) / det
                     innovation = math.hypot(y0, y1)
                     for c in range(n_cand[i] - 1, -1, -1):
                         if (_reach_ratio(i, c, s, z0, z1, r, cand_len, cand_t, cand_z,
@@ -368,12 +401,23 @@ def process_batch(collar, stamp, east, north, status, R,
                                             max_speed, cruise_speed, sprint_s, gate_sigma)
                             reason = SPEED if cand_jump[i, c] else GATE
                             break
-                    if chain < 0 and d2 > gate:
+                    if chain < 0 and gate_d2 > gate:
                         reason = GATE
                         chain = _attach(i, -1, s, z0, z1, r, False, n_cand, cand_jump,
                                         cand_len, cand_t, cand_z, cand_r, max_speed,
                                         cruise_speed, sprint_s, gate_sigma)
-                    if chain < 0:           # accepted: filterpy predict + update
+                    if chain < 0 and walk_accel > 0.0:   # accepted: mixture update
+                        _update(xp, Pp, z0, z1, r)
+                        _update(xw, Pw, z0, z1, r)
+                        lw = (math.log(walk_prob) - 0.5 * math.log(detw) - 0.5 * d2w) - (
+                            math.log1p(-walk_prob) - 0.5 * math.log(det) - 0.5 * d2)
+                        ww = 1.0 / (1.0 + math.exp(-lw)) if lw > -700.0 else 0.0
+                        _collapse(xp, Pp, xw, Pw, 1.0 - ww, ww, xi, Pi)
+                        t[i] = s
+                        n_cand[i] = 0
+                        counters[i, C_ACC] += 1
+                        code = ACCEPTED
+                    elif chain < 0:           # accepted: filterpy predict + update
                         xi[:] = xp
                         Pi[:, :] = Pp
                         _update(xi, Pi, z0, z1, r)
@@ -391,7 +435,7 @@ def process_batch(collar, stamp, east, north, status, R,
                             counters[i, C_GATE] += 1
                     else:
                         _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
-                               cand_z, cand_r, accel_std, velocity_tau, v0)
+                               cand_z, cand_r, accel_std[i], velocity_tau[i], v0)
                         counters[i, C_REINIT] += 1
                         code = REINITIALISED
         out_code[m] = code
@@ -448,7 +492,7 @@ def snapshot(tick, count, rt, rx, rP, accel_std, velocity_tau, stale_after, x, P
             init[i] = False
             continue
         tau = tick - rt[i, k]
-        _predict(rx[i, k], rP[i, k], tau, accel_std, velocity_tau, x[i], P[i])
+        _predict(rx[i, k], rP[i, k], tau, accel_std[i], velocity_tau[i], x[i], P[i])
         init[i] = True
         stale[i] = tau > stale_after
         if stale[i]:

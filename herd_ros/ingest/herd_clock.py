@@ -313,6 +313,13 @@ class HerdClock:
                             P[:, :2, :2].copy(), stale, init)
 
 
+def _per_collar(value, n: int) -> np.ndarray:
+    """``value`` itself if it is a float (n,) array (shared, not copied), else a new one."""
+    if isinstance(value, np.ndarray) and value.shape == (n,) and value.dtype == float:
+        return value
+    return np.full(n, float(value))
+
+
 class BatchHerdClock:
     """The streaming herd clock of a :class:`~herd_ros.ingest.collar_bank.CollarBank`,
     fed a batch of fixes at a time (the ``gps_ingest`` node); O(collars) compiled work per
@@ -333,19 +340,21 @@ class BatchHerdClock:
         agents: collar ids in snapshot order (index i = the bank's collar i).
         dt: clock step (s).
         stale_after: staleness horizon (s).
-        accel_std, velocity_tau: the motion model that carries states to the ticks.
+        accel_std, velocity_tau: the motion model that carries states to the ticks: one for
+            all, or per collar ((n,) arrays; the node passes its bank's own arrays, so a
+            refitted collar model reaches the clock at once).
     """
 
-    def __init__(self, agents, dt: float, stale_after: float, accel_std: float,
-                 velocity_tau: float = 0.0, depth: int = 8):
+    def __init__(self, agents, dt: float, stale_after: float, accel_std,
+                 velocity_tau=0.0, depth: int = 8):
         if not dt > 0:
             raise ValueError(f'dt must be positive, got {dt!r}')
         self.agents = list(agents)
         n = len(self.agents)
         self.dt = float(dt)
         self.stale_after = float(stale_after)
-        self.accel_std = float(accel_std)
-        self.velocity_tau = float(velocity_tau)
+        self.accel_std = _per_collar(accel_std, n)
+        self.velocity_tau = _per_collar(velocity_tau, n)
         self.reported = np.full(n, -np.inf)
         self.herd_time = -math.inf
         self._next_k: int | None = None

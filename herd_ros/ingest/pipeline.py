@@ -45,6 +45,8 @@ from herd_ros.trajectory import HerdTrajectory
 log = logging.getLogger(__name__)
 
 SMOOTHERS = ('none', 'rts', 'fir')
+#: the motion-model choices of :func:`trajectory_from_fixes`
+MOTIONS = ('auto', 'fit', 'fixed')
 
 
 def load_fixes(path, fmt: str = 'auto') -> pd.DataFrame:
@@ -157,6 +159,49 @@ def is_planar(fixes: pd.DataFrame) -> bool:
     return 'east' in fixes.columns and 'north' in fixes.columns
 
 
+def fixes_enu(fixes: pd.DataFrame, datum) -> tuple[np.ndarray, np.ndarray]:
+    """(east, north) (m) of every row about ``datum`` (None for a planar table)."""
+    if is_planar(fixes):
+        return fixes['east'].to_numpy(float), fixes['north'].to_numpy(float)
+    lat0, lon0, alt0 = datum
+    e, n, _ = geodetic_to_enu(fixes['lat'].to_numpy(float), fixes['lon'].to_numpy(float),
+                              fixes['alt'].to_numpy(float), lat0, lon0, alt0, nan_alt=alt0)
+    return e, n
+
+
+#: the smallest measurement std (m) the motion fit may find for fixes without a covariance
+#: (RTLS/UWB tags are centimetre-precise; the filter's floor guards given covariances)
+FITTED_STD_FLOOR = 0.02
+
+
+def fit_collar_motion(fixes: pd.DataFrame, datum, reasons, agents, params: FilterParams,
+                      max_fixes: int = 400) -> dict:
+    """{agent: :class:`~herd_ros.ingest.motion_fit.MotionFit`}: each collar's motion model
+    fitted on the fixes a first filter pass accepted (``reasons`` of :func:`run_filters`),
+    bursts and rejected fixes left out. A fix's variance per axis is the mean of its
+    covariance's diagonal where NavSatFix gives one, else unknown (fitted per collar)."""
+    from herd_ros.ingest.motion_fit import fit_motion
+    e, n = fixes_enu(fixes, datum)
+    t = fixes['time'].to_numpy(float)
+    known = ((fixes['position_covariance_type'].to_numpy(int) != 0)
+             & np.isfinite(fixes['cov_ee'].to_numpy(float))
+             & np.isfinite(fixes['cov_nn'].to_numpy(float)))
+    r = np.where(known, 0.5 * (fixes['cov_ee'].to_numpy(float)
+                               + fixes['cov_nn'].to_numpy(float)), np.nan)
+    r = np.where(known, np.maximum(r, params.position_std_floor ** 2), np.nan)
+    ok = np.isin(np.asarray(reasons, dtype=object), ('accepted', 'reinitialised'))
+    agent_col = fixes['agent'].to_numpy(dtype=object)
+    tracks = []
+    for a in agents:
+        rows = np.flatnonzero(ok & (agent_col == a))
+        rows = rows[np.argsort(t[rows], kind='stable')]
+        tracks.append((t[rows], np.column_stack([e[rows], n[rows]]), r[rows]))
+    walk = params.walk or (params.accel_std, params.velocity_tau)
+    fits = fit_motion(tracks, max_fixes=max_fixes, position_std_floor=FITTED_STD_FLOOR,
+                      walk=(walk[0], walk[1], params.walk_probability))
+    return dict(zip(agents, fits))
+
+
 #: the filter implementations of :func:`run_filters`
 ENGINES = ('bank', 'filterpy')
 
@@ -172,7 +217,7 @@ class CollarSummary:
 
 
 def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
-                progress: bool = False, engine: str = 'bank'):
+                progress: bool = False, engine: str = 'bank', motion: dict | None = None):
     """Run every agent's collar filter over its fixes in stamp order (``datum`` None for a
     planar table).
 
@@ -180,6 +225,8 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
     (compiled; the default and the node's). ``'filterpy'``: one
     :class:`~herd_ros.ingest.collar_filter.CollarFilter` per agent (the reference). Both
     give the same outcomes and states (to rounding, ~1e-13 m; ``test_collar_bank.py``).
+    ``motion`` {agent: :class:`~herd_ros.ingest.motion_fit.MotionFit`} replaces the motion
+    model (and the std of fixes without a covariance) of the agents it names.
 
     Returns:
         (collars, timelines, reasons): dicts keyed by agent (:class:`CollarSummary`,
@@ -189,13 +236,7 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
     """
     if engine not in ENGINES:
         raise HerdInputError(f'engine must be one of {", ".join(ENGINES)}, got {engine!r}')
-    if is_planar(fixes):
-        e, n = fixes['east'].to_numpy(float), fixes['north'].to_numpy(float)
-    else:
-        lat0, lon0, alt0 = datum
-        e, n, _ = geodetic_to_enu(fixes['lat'].to_numpy(float), fixes['lon'].to_numpy(float),
-                                  fixes['alt'].to_numpy(float), lat0, lon0, alt0,
-                                  nan_alt=alt0)
+    e, n = fixes_enu(fixes, datum)
     t = fixes['time'].to_numpy(float)
     status = fixes['status'].to_numpy(int)
     cov_type = fixes['position_covariance_type'].to_numpy(int)
@@ -205,8 +246,10 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
     cov[:, 4] = fixes['cov_nn'].to_numpy(float)
     agent_col = fixes['agent'].to_numpy(dtype=object)
     agents = sorted(pd.unique(agent_col)) if agents is None else list(agents)
+    per_agent = {a: with_motion(params, (motion or {}).get(a)) for a in agents}
     if engine == 'bank' and collar_bank.AVAILABLE:
-        return _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progress)
+        return _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progress,
+                         per_agent)
     reasons = np.empty(len(fixes), dtype=object)
     collars, timelines = {}, {}
     bar = None
@@ -216,14 +259,14 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
     for agent in agents:
         rows = np.flatnonzero(agent_col == agent)
         rows = rows[np.argsort(t[rows], kind='stable')]
-        f = CollarFilter(params)
+        f = CollarFilter(per_agent[agent])
         rec = TimelineRecorder(f)
         for k in rows:
             res = f.update(t[k], e[k], n[k], status=status[k], position_covariance=cov[k],
                            position_covariance_type=cov_type[k])
             reasons[k] = res.reason
             rec.record()
-        collars[agent] = CollarSummary(params, dict(f.counters), f.t)
+        collars[agent] = CollarSummary(per_agent[agent], dict(f.counters), f.t)
         timelines[agent] = rec.timeline()
         if bar is not None:
             bar.update(len(rows))
@@ -232,16 +275,39 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
     return collars, timelines, reasons
 
 
+def with_motion(params: FilterParams, fit) -> FilterParams:
+    """``params`` with the motion model of ``fit`` (a
+    :class:`~herd_ros.ingest.motion_fit.MotionFit`, or None: ``params`` unchanged); the
+    model of ``params`` becomes the walk model (:attr:`FilterParams.walk`)."""
+    if fit is None:
+        return params
+    import dataclasses
+    # a fitted std is the data's word: the floor (a guard against receivers that claim
+    # too much) does not raise it
+    extra = ({'default_position_std': fit.position_std,
+              'position_std_floor': min(fit.position_std, params.position_std_floor)}
+             if np.isfinite(fit.position_std) else {})
+    walk = params.walk or (params.accel_std, params.velocity_tau)
+    return dataclasses.replace(params, accel_std=fit.accel_std,
+                               velocity_tau=fit.velocity_tau, walk_accel_std=walk[0],
+                               walk_velocity_tau=walk[1], **extra)
+
+
 def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progress,
-              chunk: int = 1_000_000):
+              per_agent, chunk: int = 1_000_000):
     """:func:`run_filters` on a :class:`~herd_ros.ingest.collar_bank.CollarBank`: every
     fix of the asked agents, sorted by agent then stamp (stable, as the reference)."""
     ids, uniques = pd.factorize(agent_col)
     codes = pd.Index(agents).get_indexer(uniques)[ids]
     rows = np.flatnonzero(codes >= 0)
     rows = rows[np.lexsort((t[rows], codes[rows]))]
-    bank = collar_bank.CollarBank(len(agents), params)
-    R = bank.measurement_covariances(cov_type[rows], cov[rows])
+    walked = [p for p in per_agent.values() if p.walk is not None]
+    bank = collar_bank.CollarBank(len(agents), walked[0] if walked else params)
+    for i, a in enumerate(agents):
+        p = per_agent[a]
+        bank.set_motion(i, p.accel_std, p.velocity_tau, p.default_position_std,
+                        p.position_std_floor)
+    R = bank.measurement_covariances(cov_type[rows], cov[rows], codes[rows])
     m = len(rows)
     out = collar_bank.FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
                                np.empty((m, 4, 4)), np.empty(m, np.int64))
@@ -271,10 +337,11 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
     for i, agent in enumerate(agents):
         sl = slice(bounds[i], bounds[i + 1])
         keep = accepted[sl]
+        p = per_agent[agent]
         timelines[agent] = StateTimeline(t[rows[sl]][keep], xs[sl][keep], Ps[sl][keep],
-                                         params.accel_std, params.stale_after,
-                                         seg[sl][keep], params.velocity_tau)
-        collars[agent] = CollarSummary(params, bank.counter_dict(i), float(bank.t[i]))
+                                         p.accel_std, p.stale_after, seg[sl][keep],
+                                         p.velocity_tau)
+        collars[agent] = CollarSummary(p, bank.counter_dict(i), float(bank.t[i]))
     return collars, timelines, reasons
 
 
@@ -282,7 +349,8 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
                           smoother: str = 'none',
                           *, agents=None, trim: bool = True, progress: bool = False,
                           fir_taps: int = 30, fir_sigma: float = 6.0,
-                          engine: str = 'bank', **filter_params) -> HerdTrajectory:
+                          engine: str = 'bank', motion: str = 'auto',
+                          **filter_params) -> HerdTrajectory:
     """Filtered, synchronized herd trajectory from a fixes table.
 
     Args:
@@ -299,6 +367,12 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
         fir_taps, fir_sigma: the FIR's n and σ (steps).
         engine: ``'bank'`` (compiled, default) or ``'filterpy'`` (the reference); see
             :func:`run_filters`.
+        motion: ``'fit'``: each collar's motion model (and the std of its fixes without a
+            covariance) fitted by maximum likelihood on the fixes a first pass accepted
+            (:func:`fit_collar_motion`, :mod:`~herd_ros.ingest.motion_fit`), then the
+            filters run again with it; ``'fixed'``: one model for all,
+            ``accel_std``/``velocity_tau``; ``'auto'`` (default): ``'fit'`` unless
+            ``accel_std`` or ``velocity_tau`` is given.
         **filter_params: :class:`FilterParams` fields (accel_std, default_position_std,
             gate_probability, max_speed, stale_after, ...); None or absent
             ``stale_after`` and ``reinit_after_gap`` come from the data
@@ -307,7 +381,11 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     Returns:
         A :class:`HerdTrajectory` with ``meta``: ``datum`` (lat, lon, alt), ``counters``
         {agent: {reason: count}}, ``stale`` (T, N), ``velocities``, ``position_cov``,
-        ``smoother``, ``filter_params``, ``trimmed`` (leading, trailing ticks dropped).
+        ``smoother``, ``filter_params``, ``trimmed`` (leading, trailing ticks dropped),
+        ``fix_outcomes`` (per row of ``fixes``), ``motion_fits`` ({agent:
+        :class:`~herd_ros.ingest.motion_fit.MotionFit`} or None) and ``timelines`` ({agent:
+        :class:`~herd_ros.ingest.herd_clock.StateTimeline`}: each collar's causal track,
+        its state after every accepted fix).
     """
     if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise HerdInputError(f'dt must be a positive number of seconds, got {dt!r}')
@@ -331,7 +409,17 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     else:
         datum = choose_datum(fixes, datum)
         log.info('datum lat %.9f lon %.9f alt %.3f', *datum)
+    if motion not in MOTIONS:
+        raise HerdInputError(f'motion must be one of {", ".join(MOTIONS)}, got {motion!r}')
+    if motion == 'auto':
+        given = {k for k in ('accel_std', 'velocity_tau') if filter_params.get(k) is not None}
+        motion = 'fixed' if given else 'fit'
     collars, timelines, reasons = run_filters(fixes, datum, params, agents, progress, engine)
+    fits = None
+    if motion == 'fit':
+        fits = fit_collar_motion(fixes, datum, reasons, list(collars), params)
+        collars, timelines, reasons = run_filters(fixes, datum, params, list(collars),
+                                                  progress, engine, fits)
     agents = list(collars)
     counters = {a: dict(collars[a].counters) for a in agents}
     empty = [a for a in agents if len(timelines[a].t) == 0]
@@ -368,6 +456,7 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     traj.meta.update({'datum': datum, 'dt': float(dt), 'counters': counters,
                       'smoother': smoother,
                       'filter_params': params, 'trimmed': (lead, trail),
+                      'motion_fits': fits, 'timelines': timelines,
                       'fix_outcomes': reasons})
     return traj
 

@@ -80,6 +80,40 @@ def next_fix_distances(fixes: pd.DataFrame, track_times, track_positions, agents
     return np.concatenate(out_t), np.concatenate(out_r)
 
 
+def collar_track_before(timeline, stamps, eps: float = 1e-6):
+    """A collar's causal track just before each stamp: its state after the last accepted
+    fix strictly before the stamp, predicted to ``stamp − eps`` with its motion model
+    (:meth:`~herd_ros.ingest.herd_clock.StateTimeline.at`; NaN before its first fix or
+    when stale). This is what the collar's odometry said when the fix arrived."""
+    stamps = np.asarray(stamps, dtype=float)
+    x, _, _, _ = timeline.at(stamps - eps)
+    return x[:, :2]
+
+
+def collar_track_distances(fixes: pd.DataFrame, timelines: dict, targets=None
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """(d_track, d_raw) as :func:`next_fix_distances`, the track being each collar's
+    causal track (:func:`collar_track_before`) rather than the herd clock's poses."""
+    targets = np.ones(len(fixes), dtype=bool) if targets is None else np.asarray(targets)
+    out_t, out_r = [], []
+    agent_col = fixes['agent'].astype(str).to_numpy()
+    for a, timeline in timelines.items():
+        rows = np.flatnonzero(agent_col == str(a))
+        g = fixes.iloc[rows]
+        order = np.argsort(g['time'].to_numpy(float), kind='stable')
+        t = g['time'].to_numpy(float)[order]
+        z = g[['x', 'y']].to_numpy(float)[order]
+        tg = targets[rows][order]
+        k = np.searchsorted(t, t, side='left') - 1
+        raw = np.full_like(z, np.nan)
+        raw[k >= 0] = z[k[k >= 0]]
+        track = collar_track_before(timeline, t)
+        ok = tg & np.isfinite(raw).all(axis=1) & np.isfinite(track).all(axis=1)
+        out_t.append(np.hypot(*(track[ok] - z[ok]).T))
+        out_r.append(np.hypot(*(raw[ok] - z[ok]).T))
+    return np.concatenate(out_t), np.concatenate(out_r)
+
+
 def tracking_table(fixes: pd.DataFrame, track_times, track_positions, agents,
                    targets=None) -> dict:
     """{'track': summarise(d_track), 'last_raw_fix': summarise(d_raw)} of

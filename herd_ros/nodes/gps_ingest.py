@@ -119,7 +119,7 @@ DEFAULTS = {
                                'is stale (NaN in /herd/poses)', range=(1e-3, 1e9)),
     'initial_velocity_std': Param(0.0, 'velocity std (m/s) when a filter (re)starts; 0 = '
                                        'max_speed', range=(0.0, 1000.0)),
-    'confirm_fixes': Param(3, 'consistent fixes that replace a track whose animal walked off',
+    'confirm_fixes': Param(2, 'consistent fixes that replace a track whose animal walked off',
                            range=(1, 1000)),
     'reacquire_fixes': Param(12, 'consistent fixes that replace a track from beyond reach '
                                  '(outlier bursts never reach it)', range=(1, 10000)),
@@ -341,7 +341,8 @@ class GpsIngest(Node):
         """The bank reads its parameters at every batch: the next fix uses the new value."""
         self.cfg.filter_params = self._live_filter_params(name, value)
         self.bank.params = self.cfg.filter_params
-        self.clock.accel_std = self.cfg.filter_params.accel_std
+        if name == 'accel_std':
+            self.bank.accel_std[:] = self.cfg.filter_params.accel_std
 
     # -- one fix ------------------------------------------------------------------------
     def on_fix(self, collar: int, data: bytes):
@@ -357,8 +358,8 @@ class GpsIngest(Node):
 
     def _new_clock(self) -> BatchHerdClock:
         p = self.cfg.filter_params
-        return BatchHerdClock(self.cfg.agents, self.cfg.dt, p.stale_after, p.accel_std,
-                              p.velocity_tau)
+        return BatchHerdClock(self.cfg.agents, self.cfg.dt, p.stale_after,
+                              self.bank.accel_std, self.bank.velocity_tau)
 
     def drain(self):
         """Decode and filter the fixes received since the last batch (:meth:`process_batch`);

@@ -1,0 +1,347 @@
+"""Each collar's movement model, fitted by maximum likelihood of its Kalman innovations.
+
+The collar filter's motion model (:func:`herd_ros.ingest.collar_filter.process_noise`) is
+the integrated Ornstein-Uhlenbeck velocity process: per axis ``dv = −v/τ_v dt + σ_a dW``,
+``dp = v dt`` — the continuous-time correlated random walk of crawl (Johnson, London, Lea &
+Durban 2008, Ecology 89:1208) and the IOU model of ctmm (Fleming et al. 2014, Am. Nat.
+183:E154; Calabrese, Fleming & Gurarie 2016, MEE 7:1124), discretised exactly for any
+interval. Its two limits are the random walk (τ_v → 0 with the diffusion held) and the
+constant velocity (τ_v → ∞). Two numbers describe it for the fit:
+
+* ``τ_v`` (s), how long the animal keeps its velocity;
+* ``D`` (m²/s per axis), its long-run diffusion: ``Var p(t+τ) − p(t) → D τ`` for τ ≫ τ_v,
+  so ``σ_a = √D / τ_v`` and the stationary speed std per axis is ``√(D / (2 τ_v))``.
+
+and, for fixes without a covariance (``COVARIANCE_TYPE_UNKNOWN``), the measurement std
+``σ_m`` (m per axis). Fixes with a covariance keep theirs (its mean variance per axis).
+
+**Likelihood** (Harvey 1989, *Forecasting, structural time series models and the Kalman
+filter*, §3.4, the prediction-error decomposition)::
+
+    ℓ(θ) = Σ_k [ −log(2π S_k) − ‖y_k‖² / (2 S_k) ]        (2 axes, isotropic)
+
+with ``y_k`` the innovation and ``S_k`` its variance per axis. The axes are independent
+(isotropic model and measurement), so one covariance recursion serves both. A heavy tail
+replaces the Gaussian term beyond ``HUBER_NIS`` (χ²₂ 0.99): ``‖y‖²/S`` is taken as
+``2√(c ‖y‖²/S) − c`` there (Huber 1964), so a stray fix costs linearly, not quadratically,
+and cannot drag the fit.
+
+**Search**: a grid on log τ_v × log D (× log σ_m), refined twice about the best point at a
+third of the step (coarse-to-fine), vectorised over collars and grid points at once. The
+random walk (τ_v a tenth of the collar's shortest typical interval: its velocity forgets
+itself between fixes) and the IOU (τ_v free) are fitted separately and chosen per collar
+by AIC (Akaike 1974): the IOU needs one parameter more.
+
+**Prior**: a collar with fewer than ``min_fixes`` usable fixes takes the pooled fit of all
+collars (their likelihoods summed over the same grid); if none has enough, the caller's
+default model.
+
+Plain numpy; no ROS. Used by the offline ingest (:func:`herd_ros.ingest.pipeline
+.trajectory_from_fixes`) and the ``gps_ingest`` node on a running window of each collar's
+accepted fixes.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+#: squared-Mahalanobis (χ², 2 dof) beyond which an innovation costs linearly (p = 0.99)
+HUBER_NIS = -2.0 * math.log(0.01)
+#: the model names of :class:`MotionFit`
+MODELS = ('rw', 'iou', 'prior')
+#: largest velocity persistence searched (s): two days, the constant-velocity end
+TAU_MAX = 2 * 86400.0
+
+
+@dataclass(frozen=True)
+class MotionFit:
+    """The fitted motion model of one collar.
+
+    Attributes:
+        model: ``'rw'`` (random walk), ``'iou'`` (correlated velocity) or ``'prior'``
+            (too few fixes: the pooled or default model).
+        velocity_tau: τ_v (s).
+        diffusion: D (m²/s per axis).
+        position_std: σ_m (m per axis) for fixes without a covariance; NaN if every fix of
+            the collar carried one.
+        loglik: ℓ at the optimum (NaN for a prior).
+        aic: ``2k − 2ℓ`` (NaN for a prior).
+        n_fixes: fixes the fit used.
+    """
+
+    model: str
+    velocity_tau: float
+    diffusion: float
+    position_std: float
+    loglik: float
+    aic: float
+    n_fixes: int
+
+    @property
+    def accel_std(self) -> float:
+        """σ_a (m/s²) of the filter's process noise: ``√D / τ_v``."""
+        return math.sqrt(self.diffusion) / self.velocity_tau
+
+    @property
+    def speed_std(self) -> float:
+        """Stationary velocity std per axis (m/s): ``√(D / (2 τ_v))``."""
+        return math.sqrt(self.diffusion / (2.0 * self.velocity_tau))
+
+
+def iou_discretisation(tau, velocity_tau, accel_std):
+    """The exact discretisation of the 1-D IOU over an interval ``tau`` (arrays broadcast):
+    ``(f_pv, f_vv, q_pp, q_pv, q_vv)`` with ``F = [[1, f_pv], [0, f_vv]]`` and ``Q`` as
+    :func:`herd_ros.ingest.collar_filter.process_noise` (β = 1/τ_v)::
+
+        f_pv = (1 − e^{−βτ})/β,  f_vv = e^{−βτ},
+        q_vv = σ²/(2β) (1 − e^{−2βτ}),  q_pv = σ²/(2β²) (1 − e^{−βτ})²,
+        q_pp = σ²/β² (τ − 2(1 − e^{−βτ})/β + (1 − e^{−2βτ})/(2β))
+    """
+    tau = np.maximum(np.asarray(tau, dtype=float), 0.0)
+    beta = 1.0 / np.asarray(velocity_tau, dtype=float)
+    var = np.asarray(accel_std, dtype=float) ** 2
+    a = -np.expm1(-beta * tau)
+    b = -np.expm1(-2.0 * beta * tau)
+    f_pv = a / beta
+    f_vv = np.exp(-beta * tau)
+    q_vv = var / (2.0 * beta) * b
+    q_pv = var / (2.0 * beta ** 2) * a ** 2
+    q_pp = np.maximum(var / beta ** 2 * (tau - 2.0 * a / beta + b / (2.0 * beta)), 0.0)
+    return f_pv, f_vv, q_pp, q_pv, q_vv
+
+
+def innovation_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk=None):
+    """ℓ (module docstring) of N collars at G parameter points each.
+
+    Args:
+        t: (N, K) fix times (s), increasing along K over the first ``n`` entries.
+        z: (N, K, 2) positions (m).
+        r: (N, K) measurement variance per axis (m²); NaN = unknown (``position_var``).
+        n: (N,) fixes of each collar (entries beyond are padding).
+        velocity_tau, diffusion, position_var: (N, G) the parameter points.
+        walk: None, or ``(accel_std, velocity_tau, probability)`` of the filter's walk
+            component (:attr:`~herd_ros.ingest.collar_filter.FilterParams.walk`): the
+            likelihood is then that of the graze/walk mixture the filter runs (GPB1: each
+            step's density ``(1 − π) N(y; S_g) + π N(y; S_w)``, the posterior collapsed
+            per axis), so the fit describes the animal between its walks.
+
+    Returns:
+        (N, G) log-likelihoods (the first fix of a collar initialises, it is not scored).
+    """
+    N, K = t.shape
+    tv = np.asarray(velocity_tau, float)
+    D = np.asarray(diffusion, float)
+    sm2 = np.asarray(position_var, float)
+    accel = np.sqrt(D) / tv
+    known = np.isfinite(r)
+    r0 = np.where(known[:, :1], r[:, :1], sm2)
+    shape = tv.shape + (2,)                       # (N, G, axis)
+    p = np.broadcast_to(z[:, None, 0, :], shape).copy()
+    v = np.zeros(shape)
+    a = np.broadcast_to(r0[..., None], shape).copy()
+    b = np.zeros(shape)
+    c = np.broadcast_to((D / (2.0 * tv))[..., None], shape).copy()
+    ll = np.zeros(tv.shape)
+    comps = [(tv, accel, 0.0)]
+    if walk is not None:
+        wa, wt, pw = walk
+        comps = [(tv, accel, math.log1p(-pw)),
+                 (np.full(tv.shape, float(wt)), np.full(tv.shape, float(wa)), math.log(pw))]
+    for k in range(1, K):
+        live = (k < n)[:, None]
+        if not live.any():
+            break
+        dt = np.where(live, (t[:, k] - t[:, k - 1])[:, None], 0.0)
+        rk = np.where(known[:, k:k + 1], r[:, k:k + 1], sm2)[..., None]
+        zk = z[:, None, k, :]
+        out = []
+        for ctv, cacc, logp in comps:
+            f, g, qpp, qpv, qvv = (q[..., None] for q in iou_discretisation(dt, ctv, cacc))
+            ap = a + 2.0 * f * b + f * f * c + qpp
+            bp = g * (b + f * c) + qpv
+            cp = g * g * c + qvv
+            S = ap + rk
+            y = zk - (p + f * v)
+            nis = y * y / S
+            if walk is None:
+                tot = nis.sum(axis=-1)
+                nis_sum = np.where(tot > HUBER_NIS,
+                                   2.0 * np.sqrt(HUBER_NIS * tot) - HUBER_NIS, tot)
+            else:
+                nis_sum = nis.sum(axis=-1)
+            lc = logp - np.log(2.0 * math.pi) - 0.5 * np.log(S).sum(axis=-1) - 0.5 * nis_sum
+            kp = ap / S
+            kv = bp / S
+            out.append((lc, p + f * v + kp * y, g * v + kv * y, ap - ap * ap / S,
+                        bp - ap * bp / S, cp - bp * bp / S))
+        if len(out) == 1:
+            lk, pn, vn, an, bn, cn = out[0]
+        else:
+            l0, l1 = out[0][0], out[1][0]
+            lk = np.logaddexp(l0, l1)
+            w1 = np.exp(l1 - lk)[..., None]
+            w0 = 1.0 - w1
+            (_, p0, v0, a0, b0, c0), (_, p1, v1, a1, b1, c1) = out
+            pn = w0 * p0 + w1 * p1
+            vn = w0 * v0 + w1 * v1
+            an = w0 * (a0 + (p0 - pn) ** 2) + w1 * (a1 + (p1 - pn) ** 2)
+            bn = w0 * (b0 + (p0 - pn) * (v0 - vn)) + w1 * (b1 + (p1 - pn) * (v1 - vn))
+            cn = w0 * (c0 + (v0 - vn) ** 2) + w1 * (c1 + (v1 - vn) ** 2)
+        ll += np.where(live, lk, 0.0)
+        l3 = live[..., None]
+        p = np.where(l3, pn, p)
+        v = np.where(l3, vn, v)
+        a = np.where(l3, an, a)
+        b = np.where(l3, bn, b)
+        c = np.where(l3, cn, c)
+    return ll
+
+
+def _pack(tracks, max_fixes):
+    """(t, z, r, n) padded arrays of the collars' last ``max_fixes`` fixes each."""
+    N = len(tracks)
+    K = max(2, max((min(len(tr[0]), max_fixes) for tr in tracks), default=2))
+    t = np.zeros((N, K))
+    z = np.zeros((N, K, 2))
+    r = np.full((N, K), np.nan)
+    n = np.zeros(N, np.int64)
+    for i, (ti, zi, ri) in enumerate(tracks):
+        m = min(len(ti), max_fixes)
+        t[i, :m] = ti[len(ti) - m:]
+        z[i, :m] = zi[len(ti) - m:]
+        r[i, :m] = ri[len(ti) - m:]
+        n[i] = m
+        t[i, m:] = t[i, m - 1] if m else 0.0
+    return t, z, r, n
+
+
+def _search(t, z, r, n, log_tv, log_D, log_sm, fit_tv, fit_sm, walk, levels=4,
+            sweeps=2):  # noqa: C901
+    """Maximise ℓ per collar: the best point of the product grid (log τ_v × log D ×
+    log σ_m², each (N, ·)), then coordinate refinement: at each level, ``sweeps`` passes
+    over the free coordinates, each trying the best point ± 1, 2 steps along one
+    coordinate (the step halves at each level, starting at the grid's). Correlated
+    parameters (D and σ_m trade off) are followed by the repeated sweeps. Returns the best
+    (log τ_v, log D, log σ_m², ℓ), each (N,). τ_v stays within the grid's range."""
+    N = len(n)
+    lt, lD, ls = log_tv, log_D, log_sm                    # (N, a), (N, b), (N, c)
+    A, B, C = lt.shape[1], lD.shape[1], ls.shape[1]
+    grid = np.stack([np.repeat(lt, B * C, axis=1),
+                     np.tile(np.repeat(lD, C, axis=1), (1, A)),
+                     np.tile(ls, (1, A * B))], axis=-1)   # (N, G, 3)
+
+    def loglik(pts):
+        return innovation_loglik(t, z, r, n, 10.0 ** pts[..., 0], 10.0 ** pts[..., 1],
+                                 10.0 ** pts[..., 2], walk)
+
+    ll = loglik(grid)
+    rows = np.arange(N)
+    k = np.argmax(ll, axis=1)
+    best, best_ll = grid[rows, k], ll[rows, k]
+    step = np.array([(g[0, -1] - g[0, 0]) / max(g.shape[1] - 1, 1) for g in (lt, lD, ls)])
+    free = [d for d, on in enumerate((fit_tv, True, fit_sm)) if on]
+    offsets = np.array([-2.0, -1.0, 1.0, 2.0])
+    for _ in range(levels):
+        step = step / 2.0
+        for _ in range(sweeps):
+            for d in free:
+                pts = np.repeat(best[:, None, :], len(offsets), axis=1)
+                pts[..., d] += offsets[None, :] * step[d]
+                if d == 0:
+                    pts[..., 0] = np.clip(pts[..., 0], lt[:, :1], lt[:, -1:])
+                ll = loglik(pts)
+                k = np.argmax(ll, axis=1)
+                better = ll[rows, k] > best_ll
+                best[better] = pts[rows, k][better]
+                best_ll[better] = ll[rows, k][better]
+    return best[:, 0], best[:, 1], best[:, 2], best_ll
+
+
+def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 400,
+               position_std_floor: float = 0.5, default: MotionFit | None = None,
+               walk=None) -> list[MotionFit]:
+    """Fit each collar's motion model (module docstring).
+
+    Args:
+        tracks: per collar ``(t (K,), z (K, 2), r (K,))``: the times (s, increasing),
+            positions (m) and measurement variances per axis (m², NaN = unknown) of its
+            accepted fixes (outliers already out).
+        min_fixes: fewer usable fixes take the pooled fit (the prior).
+        max_fixes: the fit uses each collar's last ``max_fixes`` fixes (a running window).
+        position_std_floor: the smallest σ_m searched (m).
+        default: the model of a collar when no collar has ``min_fixes`` (None = a random
+            walk of D = 0.05 m²/s with σ_m = 5 m).
+        walk: ``(accel_std, velocity_tau, probability)`` of the filter's walk component, or
+            None (see :func:`innovation_loglik`).
+
+    Returns:
+        One :class:`MotionFit` per track, in order.
+    """
+    if default is None:
+        default = MotionFit('prior', 1.0, 0.05, 5.0, float('nan'), float('nan'), 0)
+    cleaned = []
+    for ti, zi, ri in tracks:
+        ti = np.asarray(ti, float)
+        zi = np.asarray(zi, float).reshape(-1, 2)
+        ri = np.asarray(ri, float).reshape(-1)
+        ok = np.isfinite(ti) & np.isfinite(zi).all(axis=1)
+        ti, zi, ri = ti[ok], zi[ok], ri[ok]
+        keep = np.concatenate([[True], np.diff(ti) > 0]) if len(ti) else ok[:0]
+        cleaned.append((ti[keep], zi[keep], ri[keep]))
+    enough = [i for i, tr in enumerate(cleaned) if len(tr[0]) >= min_fixes]
+    out = [None] * len(cleaned)
+    if not enough:
+        return [default] * len(cleaned)
+    t, z, r, n = _pack([cleaned[i] for i in enough], max_fixes)
+    N = len(enough)
+    unknown = ~np.isfinite(r) & (np.arange(t.shape[1])[None, :] < n[:, None])
+    fit_sm = bool(unknown.any())
+    # the random-walk limit: τ_v a tenth of the collar's 10th-percentile interval
+    tv_rw = np.empty(N)
+    for j in range(N):
+        d = np.diff(t[j, :n[j]])
+        tv_rw[j] = max(0.05, 0.1 * float(np.percentile(d, 10)))
+    floor2 = float(position_std_floor) ** 2
+    ls0 = np.tile(np.log10(floor2) + np.linspace(0.0, 6.5, 7), (N, 1))   # σ_m ≥ floor, ×1800
+    if not fit_sm:
+        ls0 = ls0[:, :1]
+    lD0 = np.tile(np.linspace(-4.0, 1.5, 7), (N, 1))
+    # random walk: τ_v fixed
+    rw = _search(t, z, r, n, np.log10(tv_rw)[:, None], lD0, ls0, False, fit_sm, walk)
+    # IOU: τ_v free from 3 × the random-walk value to two days
+    lt0 = np.linspace(np.log10(3.0 * tv_rw), np.full(N, np.log10(TAU_MAX)), 6).T
+    iou = _search(t, z, r, n, lt0, lD0, ls0, True, fit_sm, walk)
+    k_extra = 1 if fit_sm else 0
+    aic_rw = 2.0 * (1 + k_extra) - 2.0 * rw[3]
+    aic_iou = 2.0 * (2 + k_extra) - 2.0 * iou[3]
+    for j, i in enumerate(enough):
+        pick, name, aic = (iou, 'iou', aic_iou[j]) if aic_iou[j] < aic_rw[j] else \
+            (rw, 'rw', aic_rw[j])
+        has_unknown = bool(unknown[j, :n[j]].any())
+        out[i] = MotionFit(name, float(10.0 ** pick[0][j]), float(10.0 ** pick[1][j]),
+                           float(math.sqrt(10.0 ** pick[2][j])) if has_unknown else
+                           float('nan'), float(pick[3][j]), float(aic), int(n[j]))
+    if len(enough) < len(cleaned):
+        pooled = _pooled(t, z, r, n, tv_rw, fit_sm, floor2, walk)
+        for i in range(len(cleaned)):
+            if out[i] is None:
+                out[i] = pooled
+    return out
+
+
+def _pooled(t, z, r, n, tv_rw, fit_sm, floor2, walk) -> MotionFit:
+    """The prior: one random walk for all collars (likelihoods summed over a shared grid)."""
+    N = len(n)
+    tv = float(np.median(tv_rw))
+    lD = np.linspace(-4.0, 1.5, 23)
+    ls = np.log10(floor2) + np.linspace(0.0, 6.5, 27) if fit_sm else np.array([0.0])
+    DD = np.tile(np.repeat(lD, len(ls)), (N, 1))
+    SM = np.tile(np.tile(ls, len(lD)), (N, 1))
+    ll = innovation_loglik(t, z, r, n, np.full(DD.shape, tv), 10.0 ** DD,
+                           10.0 ** SM, walk).sum(axis=0)
+    g = int(np.argmax(ll))
+    return MotionFit('prior', tv, float(10.0 ** DD[0, g]),
+                     float(math.sqrt(10.0 ** SM[0, g])) if fit_sm else float('nan'),
+                     float('nan'), float('nan'), 0)
