@@ -55,7 +55,7 @@ def test_a_correlated_walk_is_recovered_and_chosen_over_a_random_walk():
     rng = np.random.default_rng(7)
     truth = dict(velocity_tau=600.0, diffusion=0.5, position_std=3.0)
     tracks = [simulate_iou(rng, 400, **truth) for _ in range(3)]
-    fits = fit_motion([(t, z, np.full(len(t), np.nan)) for t, z in tracks])
+    fits = fit_motion([(t, z, np.full(len(t), np.nan)) for t, z in tracks], max_fixes=400)
     for f in fits:
         assert f.model == 'iou'
         assert 0.5 < f.velocity_tau / truth['velocity_tau'] < 2.0, f
@@ -68,7 +68,7 @@ def test_a_random_walk_is_chosen_for_a_random_walk_and_its_diffusion_recovered()
     # velocity forgets itself in 2 s, fixes every 30-300 s: a random walk at these scales
     tracks = [simulate_iou(rng, 400, velocity_tau=2.0, diffusion=0.2, position_std=2.0)
               for _ in range(3)]
-    fits = fit_motion([(t, z, np.full(len(t), np.nan)) for t, z in tracks])
+    fits = fit_motion([(t, z, np.full(len(t), np.nan)) for t, z in tracks], max_fixes=400)
     # AIC keeps the needless τ_v of an IOU now and then (ℓ is flat in τ_v ≪ the
     # intervals): most collars are random walks, and every fit forgets its velocity
     # well within an interval
@@ -109,3 +109,22 @@ def test_bad_fixes_are_left_out_not_fatal():
     z = np.concatenate([z[:10], z[9:10], z[10:]])
     (f,) = fit_motion([(t, z, np.full(len(t), np.nan))])
     assert f.n_fixes == 99 and np.isfinite(f.loglik)
+
+
+def test_the_compiled_likelihood_is_the_vectorised_one():
+    from herd_ros.ingest import collar_bank
+    from herd_ros.ingest.motion_fit import _pack, innovation_loglik, innovation_loglik_numpy
+    if not collar_bank.AVAILABLE:
+        pytest.skip('no compiled kernels')
+    rng = np.random.default_rng(12)
+    tracks = [simulate_iou(rng, k, velocity_tau=60.0, diffusion=0.3, position_std=2.0)
+              for k in (50, 80)]
+    r = [np.where(rng.random(len(t)) < 0.5, np.nan, 5.0) for t, _ in tracks]
+    t, z, rr, n = _pack([(t, zz, ri) for (t, zz), ri in zip(tracks, r)], 100)
+    tv = np.array([[5.0, 60.0, 900.0]] * 2)
+    D = np.array([[0.1, 0.3, 1.0]] * 2)
+    sm = np.array([[1.0, 4.0, 9.0]] * 2)
+    for walk in (None, (0.05, 120.0, 0.05)):
+        np.testing.assert_allclose(innovation_loglik(t, z, rr, n, tv, D, sm, walk),
+                                   innovation_loglik_numpy(t, z, rr, n, tv, D, sm, walk),
+                                   rtol=1e-10)

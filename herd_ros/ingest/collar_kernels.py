@@ -86,10 +86,10 @@ def _motion(tau, accel_std, velocity_tau):
         if tau < 0.0:
             tau = 0.0
         beta = 1.0 / velocity_tau
-        a = -math.expm1(-beta * tau)
-        b = -math.expm1(-2.0 * beta * tau)
+        a = -math.expm1(-beta * tau)          # 1 − e^{−βτ}
+        b = a * (2.0 - a)                     # 1 − e^{−2βτ} = 1 − (1 − a)²
         f_pv = a / beta
-        f_vv = math.exp(-beta * tau)
+        f_vv = 1.0 - a
         vv = var / (2.0 * beta) * b
         pv = var / (2.0 * beta ** 2) * a ** 2
         pp = var / beta ** 2 * (tau - 2.0 * a / beta + b / (2.0 * beta))
@@ -497,3 +497,210 @@ def snapshot(tick, count, rt, rx, rP, accel_std, velocity_tau, stale_after, x, P
         stale[i] = tau > stale_after
         if stale[i]:
             x[i] = np.nan
+
+
+# -- the motion fit (motion_fit.innovation_loglik) ----------------------------------------
+
+
+@_jit
+def _loglik_one(t, z, r, i, m, tv, D, sm2, walk_accel, walk_tau, walk_prob, huber):
+    """ℓ of collar i's first ``m`` fixes at one parameter point (see motion_loglik)."""
+    two_pi = 2.0 * math.pi
+    use_walk = walk_accel > 0.0
+    lg0 = math.log1p(-walk_prob) if use_walk else 0.0
+    lw0 = math.log(walk_prob) if use_walk else 0.0
+    p = np.empty(2)
+    v = np.empty(2)
+    a = np.empty(2)
+    b = np.empty(2)
+    c = np.empty(2)
+    comp = np.empty((2, 5, 2))          # component, (p, v, a, b, c), axis
+    lc = np.empty(2)
+    accel = math.sqrt(D) / tv
+    r0 = r[i, 0] if math.isfinite(r[i, 0]) else sm2
+    for ax in range(2):
+        p[ax] = z[i, 0, ax]
+        v[ax] = 0.0
+        a[ax] = r0
+        b[ax] = 0.0
+        c[ax] = D / (2.0 * tv)
+    ll = 0.0
+    ncomp = 2 if use_walk else 1
+    for k in range(1, m):
+        dt = t[i, k] - t[i, k - 1]
+        rk = r[i, k] if math.isfinite(r[i, k]) else sm2
+        for j in range(ncomp):
+            if j == 0:
+                f, gg, qpp, qpv, qvv = _motion(dt, accel, tv)
+            else:
+                f, gg, qpp, qpv, qvv = _motion(dt, walk_accel, walk_tau)
+            nis = 0.0
+            logdet = 0.0
+            for ax in range(2):
+                ap = a[ax] + 2.0 * f * b[ax] + f * f * c[ax] + qpp
+                bp = gg * (b[ax] + f * c[ax]) + qpv
+                cp = gg * gg * c[ax] + qvv
+                S = ap + rk
+                pp = p[ax] + f * v[ax]
+                y = z[i, k, ax] - pp
+                nis += y * y / S
+                logdet += math.log(S)
+                comp[j, 0, ax] = pp + ap / S * y
+                comp[j, 1, ax] = gg * v[ax] + bp / S * y
+                comp[j, 2, ax] = ap - ap * ap / S
+                comp[j, 3, ax] = bp - ap * bp / S
+                comp[j, 4, ax] = cp - bp * bp / S
+            if not use_walk and nis > huber:
+                nis = 2.0 * math.sqrt(huber * nis) - huber
+            lc[j] = (lg0 if j == 0 else lw0) - math.log(two_pi) - 0.5 * logdet - 0.5 * nis
+        if not use_walk:
+            ll += lc[0]
+            for ax in range(2):
+                p[ax] = comp[0, 0, ax]
+                v[ax] = comp[0, 1, ax]
+                a[ax] = comp[0, 2, ax]
+                b[ax] = comp[0, 3, ax]
+                c[ax] = comp[0, 4, ax]
+            continue
+        hi = max(lc[0], lc[1])
+        lk = hi + math.log(math.exp(lc[0] - hi) + math.exp(lc[1] - hi))
+        ll += lk
+        w1 = math.exp(lc[1] - lk)
+        w0 = 1.0 - w1
+        for ax in range(2):
+            p0 = comp[0, 0, ax]
+            p1 = comp[1, 0, ax]
+            v0 = comp[0, 1, ax]
+            v1 = comp[1, 1, ax]
+            pn = w0 * p0 + w1 * p1
+            vn = w0 * v0 + w1 * v1
+            a[ax] = (w0 * (comp[0, 2, ax] + (p0 - pn) ** 2)
+                     + w1 * (comp[1, 2, ax] + (p1 - pn) ** 2))
+            b[ax] = (w0 * (comp[0, 3, ax] + (p0 - pn) * (v0 - vn))
+                     + w1 * (comp[1, 3, ax] + (p1 - pn) * (v1 - vn)))
+            c[ax] = (w0 * (comp[0, 4, ax] + (v0 - vn) ** 2)
+                     + w1 * (comp[1, 4, ax] + (v1 - vn) ** 2))
+            p[ax] = pn
+            v[ax] = vn
+    return ll
+
+
+@_jit
+def motion_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk_accel, walk_tau,
+                  walk_prob, huber, out):
+    """:func:`herd_ros.ingest.motion_fit.innovation_loglik` compiled: ``out[i, g]`` is
+    collar i's log-likelihood at parameter point g (``walk_accel`` ≤ 0: no walk
+    component; ``huber``: the χ²₂ level beyond which an innovation costs linearly, used
+    without a walk component)."""
+    for i in range(t.shape[0]):
+        for g in range(velocity_tau.shape[1]):
+            out[i, g] = _loglik_one(t, z, r, i, n[i], velocity_tau[i, g], diffusion[i, g],
+                                    position_var[i, g], walk_accel, walk_tau, walk_prob,
+                                    huber)
+
+
+@_jit
+def _nm_value(t, z, r, i, m, x, lo, hi, walk_accel, walk_tau, walk_prob, huber):
+    """−ℓ at log10 parameters x = (τ_v, σ_a, σ_m²), clipped to [lo, hi] (σ_a the
+    acceleration std: well defined from the random walk to the constant velocity; the
+    diffusion is D = σ_a² τ_v²)."""
+    for d in range(3):
+        x[d] = min(max(x[d], lo[i, d]), hi[i, d])
+    tv = 10.0 ** x[0]
+    sa = 10.0 ** x[1]
+    return -_loglik_one(t, z, r, i, m, tv, sa * sa * tv * tv, 10.0 ** x[2],
+                        walk_accel, walk_tau, walk_prob, huber)
+
+
+@_jit
+def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_prob,
+                       huber, max_evals, ftol, out_x, out_ll):
+    """Maximise each collar's ℓ over log10 (τ_v, σ_a, σ_m²) by Nelder & Mead (1965) from
+    ``x0`` (N, 3) with initial steps ``step`` (3,) (a coordinate with step 0 is held),
+    within [lo, hi] (N, 3); stops when the simplex's values agree within ``ftol`` or
+    after ``max_evals``. Writes the optimum to ``out_x`` (N, 3), ℓ to ``out_ll`` (N,)."""
+    nfree = 0
+    dims = np.empty(3, np.int64)
+    for d in range(3):
+        if step[d] != 0.0:
+            dims[nfree] = d
+            nfree += 1
+    S = np.empty((nfree + 1, 3))
+    F = np.empty(nfree + 1)
+    xc = np.empty(3)
+    xr = np.empty(3)
+    xe = np.empty(3)
+    xk = np.empty(3)
+    for i in range(t.shape[0]):
+        m = n[i]
+        for j in range(nfree + 1):
+            for d in range(3):
+                S[j, d] = x0[i, d]
+            if j > 0:
+                S[j, dims[j - 1]] += step[dims[j - 1]]
+            F[j] = _nm_value(t, z, r, i, m, S[j], lo, hi, walk_accel, walk_tau, walk_prob,
+                             huber)
+        evals = nfree + 1
+        while evals < max_evals:
+            # order: best first
+            for j in range(1, nfree + 1):
+                k = j
+                while k > 0 and F[k] < F[k - 1]:
+                    for d in range(3):
+                        tmp = S[k, d]
+                        S[k, d] = S[k - 1, d]
+                        S[k - 1, d] = tmp
+                    tmp = F[k]
+                    F[k] = F[k - 1]
+                    F[k - 1] = tmp
+                    k -= 1
+            if F[nfree] - F[0] < ftol:
+                break
+            for d in range(3):
+                s_ = 0.0
+                for j in range(nfree):
+                    s_ += S[j, d]
+                xc[d] = s_ / nfree
+            for d in range(3):
+                xr[d] = xc[d] + (xc[d] - S[nfree, d])
+            fr = _nm_value(t, z, r, i, m, xr, lo, hi, walk_accel, walk_tau, walk_prob, huber)
+            evals += 1
+            if fr < F[0]:
+                for d in range(3):
+                    xe[d] = xc[d] + 2.0 * (xc[d] - S[nfree, d])
+                fe = _nm_value(t, z, r, i, m, xe, lo, hi, walk_accel, walk_tau, walk_prob,
+                               huber)
+                evals += 1
+                if fe < fr:
+                    S[nfree, :] = xe
+                    F[nfree] = fe
+                else:
+                    S[nfree, :] = xr
+                    F[nfree] = fr
+                continue
+            if fr < F[nfree - 1]:
+                S[nfree, :] = xr
+                F[nfree] = fr
+                continue
+            outside = fr < F[nfree]
+            for d in range(3):
+                base = xr[d] if outside else S[nfree, d]
+                xk[d] = xc[d] + 0.5 * (base - xc[d])
+            fk = _nm_value(t, z, r, i, m, xk, lo, hi, walk_accel, walk_tau, walk_prob, huber)
+            evals += 1
+            if fk < min(fr, F[nfree]):
+                S[nfree, :] = xk
+                F[nfree] = fk
+                continue
+            for j in range(1, nfree + 1):          # shrink towards the best
+                for d in range(3):
+                    S[j, d] = S[0, d] + 0.5 * (S[j, d] - S[0, d])
+                F[j] = _nm_value(t, z, r, i, m, S[j], lo, hi, walk_accel, walk_tau,
+                                 walk_prob, huber)
+                evals += 1
+        best = 0
+        for j in range(1, nfree + 1):
+            if F[j] < F[best]:
+                best = j
+        out_x[i, :] = S[best]
+        out_ll[i] = -F[best]

@@ -26,8 +26,9 @@ replaces the Gaussian term beyond ``HUBER_NIS`` (χ²₂ 0.99): ``‖y‖²/S`` 
 ``2√(c ‖y‖²/S) − c`` there (Huber 1964), so a stray fix costs linearly, not quadratically,
 and cannot drag the fit.
 
-**Search**: a grid on log τ_v × log D (× log σ_m), refined twice about the best point at a
-third of the step (coarse-to-fine), vectorised over collars and grid points at once. The
+**Search**: Nelder & Mead (1965) on log τ_v, log D (, log σ_m²), compiled, each collar
+from the least-squares fit of its variogram (:func:`moment_start`); where the compiled
+kernels are absent, a grid with coordinate refinement, vectorised over collars. The
 random walk (τ_v a tenth of the collar's shortest typical interval: its velocity forgets
 itself between fixes) and the IOU (τ_v free) are fitted separately and chosen per collar
 by AIC (Akaike 1974): the IOU needs one parameter more.
@@ -113,7 +114,32 @@ def iou_discretisation(tau, velocity_tau, accel_std):
 
 
 def innovation_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk=None):
-    """ℓ (module docstring) of N collars at G parameter points each.
+    """ℓ (module docstring) of N collars at G parameter points each: the compiled loop
+    (:func:`herd_ros.ingest.collar_kernels.motion_loglik`) where the collar kernels are,
+    else :func:`innovation_loglik_numpy` (same arguments, same numbers to rounding)."""
+    from herd_ros.ingest import collar_bank
+    if not collar_bank.AVAILABLE:
+        return innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
+                                       walk)
+    shape = np.broadcast_shapes(np.shape(velocity_tau), np.shape(diffusion),
+                                np.shape(position_var))
+
+    def arr(x, s=shape):
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=float), s))
+
+    out = np.empty(shape)
+    wa, wt, pw = walk if walk is not None else (0.0, 1.0, 0.5)
+    collar_bank.KERNELS.motion_loglik(
+        arr(t, np.shape(t)), arr(z, np.shape(z)), arr(r, np.shape(r)),
+        np.ascontiguousarray(n, dtype=np.int64), arr(velocity_tau), arr(diffusion),
+        arr(position_var), float(wa), float(wt), float(pw), HUBER_NIS, out)
+    return out
+
+
+def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
+                            walk=None):
+    """ℓ (module docstring) of N collars at G parameter points each, vectorised over
+    collars and points (the reference of the compiled loop).
 
     Args:
         t: (N, K) fix times (s), increasing along K over the first ``n`` entries.
@@ -259,7 +285,7 @@ def _search(t, z, r, n, log_tv, log_D, log_sm, fit_tv, fit_sm, walk, levels=4,
     return best[:, 0], best[:, 1], best[:, 2], best_ll
 
 
-def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 400,
+def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
                position_std_floor: float = 0.5, default: MotionFit | None = None,
                walk=None) -> list[MotionFit]:
     """Fit each collar's motion model (module docstring).
@@ -304,15 +330,19 @@ def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 400,
         d = np.diff(t[j, :n[j]])
         tv_rw[j] = max(0.05, 0.1 * float(np.percentile(d, 10)))
     floor2 = float(position_std_floor) ** 2
-    ls0 = np.tile(np.log10(floor2) + np.linspace(0.0, 6.5, 7), (N, 1))   # σ_m ≥ floor, ×1800
-    if not fit_sm:
-        ls0 = ls0[:, :1]
-    lD0 = np.tile(np.linspace(-4.0, 1.5, 7), (N, 1))
-    # random walk: τ_v fixed
-    rw = _search(t, z, r, n, np.log10(tv_rw)[:, None], lD0, ls0, False, fit_sm, walk)
-    # IOU: τ_v free from 3 × the random-walk value to two days
-    lt0 = np.linspace(np.log10(3.0 * tv_rw), np.full(N, np.log10(TAU_MAX)), 6).T
-    iou = _search(t, z, r, n, lt0, lD0, ls0, True, fit_sm, walk)
+    from herd_ros.ingest import collar_bank
+    if collar_bank.AVAILABLE:
+        rw, iou = _nelder_mead_fits(t, z, r, n, tv_rw, fit_sm, floor2, walk)
+    else:
+        ls0 = np.tile(np.log10(floor2) + np.linspace(0.0, 6.5, 7), (N, 1))
+        if not fit_sm:
+            ls0 = ls0[:, :1]
+        lD0 = np.tile(np.linspace(-4.0, 1.5, 7), (N, 1))
+        # random walk: τ_v fixed
+        rw = _search(t, z, r, n, np.log10(tv_rw)[:, None], lD0, ls0, False, fit_sm, walk)
+        # IOU: τ_v free from 3 × the random-walk value to two days
+        lt0 = np.linspace(np.log10(3.0 * tv_rw), np.full(N, np.log10(TAU_MAX)), 6).T
+        iou = _search(t, z, r, n, lt0, lD0, ls0, True, fit_sm, walk)
     k_extra = 1 if fit_sm else 0
     aic_rw = 2.0 * (1 + k_extra) - 2.0 * rw[3]
     aic_iou = 2.0 * (2 + k_extra) - 2.0 * iou[3]
@@ -329,6 +359,87 @@ def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 400,
             if out[i] is None:
                 out[i] = pooled
     return out
+
+
+def moment_start(t, z, r, n, floor2):
+    """Starting values (D, σ_m²) per collar from the variogram of consecutive fixes: per
+    axis ``E |Δz|²/2 = D Δt + 2 σ_m²`` for a random walk seen with white noise, fitted by
+    least squares over each collar's pairs (then kept within sane bounds)."""
+    N = len(n)
+    D = np.full(N, 0.05)
+    s2 = np.full(N, max(floor2, 1.0))
+    for j in range(N):
+        m = n[j]
+        if m < 3:
+            continue
+        dt = np.diff(t[j, :m])
+        y = 0.25 * (np.diff(z[j, :m], axis=0) ** 2).sum(axis=1)     # per axis, halved
+        A = np.column_stack([dt, np.full(len(dt), 2.0)])
+        coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+        if np.isfinite(coef).all():
+            D[j] = float(np.clip(coef[0], 1e-5, 1e3))
+            s2[j] = float(np.clip(coef[1], floor2, 1e4))
+    return D, s2
+
+
+def _nelder_mead_fits(t, z, r, n, tv_rw, fit_sm, floor2, walk, scout: int = 60):
+    """The random walk and the IOU of every collar, each as (log τ_v, log D, log σ_m², ℓ):
+    a coarse grid on each collar's first ``scout`` fixes finds the basin (σ_m² about the
+    variogram's value, :func:`moment_start`), then the compiled Nelder-Mead
+    (:func:`herd_ros.ingest.collar_kernels.motion_nelder_mead`) polishes on the whole
+    window. Searched in log (τ_v, σ_a, σ_m²), σ_a the acceleration std (the diffusion
+    D = σ_a² τ_v² runs off to infinity at the constant-velocity end; σ_a does not)."""
+    from herd_ros.ingest import collar_bank
+    N = len(n)
+    wa, wt, pw = walk if walk is not None else (0.0, 1.0, 0.5)
+    D0, s20 = moment_start(t, z, r, n, floor2)
+    short = np.minimum(n, scout)
+    ls = (np.log10(s20)[:, None] + np.array([-1.0, 0.0, 1.0])[None, :] if fit_sm
+          else np.zeros((N, 1)))
+    ls = np.maximum(ls, np.log10(floor2))
+
+    def grid_best(lt, la):
+        """Best grid point per collar over log τ (N, a) × log σ_a (N, b) × ls."""
+        A, B, C = lt.shape[1], la.shape[1], ls.shape[1]
+        TV = np.repeat(lt, B * C, axis=1)
+        SA = np.tile(np.repeat(la, C, axis=1), (1, A))
+        SM = np.tile(ls, (1, A * B))
+        tv = 10.0 ** TV
+        ll = innovation_loglik(t, z, r, short, tv, (10.0 ** SA * tv) ** 2, 10.0 ** SM, walk)
+        k = np.argmax(ll, axis=1)
+        rows = np.arange(N)
+        return np.column_stack([TV[rows, k], SA[rows, k], SM[rows, k]])
+
+    def polish(x0, lo, hi, step, evals):
+        x = np.empty((N, 3))
+        ll = np.empty(N)
+        collar_bank.KERNELS.motion_nelder_mead(
+            t, z, r, np.ascontiguousarray(n, dtype=np.int64), np.ascontiguousarray(x0),
+            np.ascontiguousarray(lo), np.ascontiguousarray(hi), np.asarray(step, float),
+            float(wa), float(wt), float(pw), HUBER_NIS, int(evals), 0.05, x, ll)
+        return x, ll
+
+    sm_step = 0.5 if fit_sm else 0.0
+    sm_lo = np.full(N, np.log10(floor2))
+    sm_hi = np.full(N, 4.0)
+    # random walk: τ_v fixed; σ_a about the variogram's diffusion (D = σ_a² τ_rw²)
+    la_rw = np.log10(np.sqrt(D0) / tv_rw)[:, None] + np.linspace(-1.5, 1.5, 5)[None, :]
+    x0 = grid_best(np.log10(tv_rw)[:, None], la_rw)
+    lo = np.column_stack([np.log10(tv_rw), np.full(N, -8.0), sm_lo])
+    hi = np.column_stack([np.log10(tv_rw), np.full(N, 4.0), sm_hi])
+    xr, llr = polish(x0, lo, hi, (0.0, 0.5, sm_step), 80)
+    # IOU: τ_v from 3 × the random-walk value to two days
+    lt = np.linspace(np.log10(3.0 * tv_rw), np.full(N, np.log10(TAU_MAX)), 5).T
+    la = np.tile(np.linspace(-5.0, 0.0, 6), (N, 1))
+    x0 = grid_best(lt, la)
+    lo_i = np.column_stack([np.log10(3.0 * tv_rw), np.full(N, -8.0), sm_lo])
+    hi_i = np.column_stack([np.full(N, np.log10(TAU_MAX)), np.full(N, 2.0), sm_hi])
+    xi, lli = polish(x0, lo_i, hi_i, (0.5, 0.5, sm_step), 120)
+
+    def as_d(x):
+        return 2.0 * (x[:, 1] + x[:, 0])          # log10 D = 2 (log σ_a + log τ_v)
+
+    return ((xr[:, 0], as_d(xr), xr[:, 2], llr), (xi[:, 0], as_d(xi), xi[:, 2], lli))
 
 
 def _pooled(t, z, r, n, tv_rw, fit_sm, floor2, walk) -> MotionFit:

@@ -169,13 +169,15 @@ def fixes_enu(fixes: pd.DataFrame, datum) -> tuple[np.ndarray, np.ndarray]:
     return e, n
 
 
+#: fixes per collar the motion fit uses (its latest accepted ones)
+FIT_WINDOW = 200
 #: the smallest measurement std (m) the motion fit may find for fixes without a covariance
 #: (RTLS/UWB tags are centimetre-precise; the filter's floor guards given covariances)
 FITTED_STD_FLOOR = 0.02
 
 
 def fit_collar_motion(fixes: pd.DataFrame, datum, reasons, agents, params: FilterParams,
-                      max_fixes: int = 400) -> dict:
+                      max_fixes: int = FIT_WINDOW) -> dict:
     """{agent: :class:`~herd_ros.ingest.motion_fit.MotionFit`}: each collar's motion model
     fitted on the fixes a first filter pass accepted (``reasons`` of :func:`run_filters`),
     bursts and rejected fixes left out. A fix's variance per axis is the mean of its
@@ -190,12 +192,15 @@ def fit_collar_motion(fixes: pd.DataFrame, datum, reasons, agents, params: Filte
                                + fixes['cov_nn'].to_numpy(float)), np.nan)
     r = np.where(known, np.maximum(r, params.position_std_floor ** 2), np.nan)
     ok = np.isin(np.asarray(reasons, dtype=object), ('accepted', 'reinitialised'))
-    agent_col = fixes['agent'].to_numpy(dtype=object)
+    ids, uniques = pd.factorize(fixes['agent'].to_numpy(dtype=object))
+    codes = pd.Index(agents).get_indexer(uniques)[ids]
+    rows = np.flatnonzero(ok & (codes >= 0))
+    rows = rows[np.lexsort((t[rows], codes[rows]))]
+    bounds = np.searchsorted(codes[rows], np.arange(len(agents) + 1))
     tracks = []
-    for a in agents:
-        rows = np.flatnonzero(ok & (agent_col == a))
-        rows = rows[np.argsort(t[rows], kind='stable')]
-        tracks.append((t[rows], np.column_stack([e[rows], n[rows]]), r[rows]))
+    for i in range(len(agents)):
+        sl = rows[bounds[i]:bounds[i + 1]][-max_fixes:]
+        tracks.append((t[sl], np.column_stack([e[sl], n[sl]]), r[sl]))
     walk = params.walk or (params.accel_std, params.velocity_tau)
     fits = fit_motion(tracks, max_fixes=max_fixes, position_std_floor=FITTED_STD_FLOOR,
                       walk=(walk[0], walk[1], params.walk_probability))
@@ -414,12 +419,16 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     if motion == 'auto':
         given = {k for k in ('accel_std', 'velocity_tau') if filter_params.get(k) is not None}
         motion = 'fixed' if given else 'fit'
-    collars, timelines, reasons = run_filters(fixes, datum, params, agents, progress, engine)
     fits = None
     if motion == 'fit':
-        fits = fit_collar_motion(fixes, datum, reasons, list(collars), params)
-        collars, timelines, reasons = run_filters(fixes, datum, params, list(collars),
-                                                  progress, engine, fits)
+        # a first pass over each collar's latest fixes tells outliers out of the fit
+        order = sorted(pd.unique(fixes['agent'])) if agents is None else list(agents)
+        tail = (fixes.sort_values('time', kind='stable').groupby('agent', sort=False)
+                .tail(2 * FIT_WINDOW).reset_index(drop=True))
+        _, _, first = run_filters(tail, datum, params, order, False, engine)
+        fits = fit_collar_motion(tail, datum, first, order, params, FIT_WINDOW)
+    collars, timelines, reasons = run_filters(fixes, datum, params, agents, progress, engine,
+                                              fits)
     agents = list(collars)
     counters = {a: dict(collars[a].counters) for a in agents}
     empty = [a for a in agents if len(timelines[a].t) == 0]
