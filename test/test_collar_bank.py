@@ -123,6 +123,19 @@ def test_bank_equals_filterpy_fix_by_fix_on_every_collar_fault(faulty_fixes, vel
             'unconfirmed'} <= seen, seen
 
 
+def test_bank_equals_filterpy_with_the_graze_walk_mixture(faulty_fixes):
+    """A tight own model with the broad one as its walk component (a fitted collar): the
+    GPB1 mixture update of the kernel is the reference's, fix by fix."""
+    params = FilterParams(**auto_filter_params(faulty_fixes, accel_std=0.002,
+                                               velocity_tau=20.0), walk_accel_std=0.05,
+                          walk_velocity_tau=120.0, walk_probability=0.1)
+    agents, idx, t, e, n, status, ctype, cov = arrays(faulty_fixes)
+    order = np.lexsort((t, idx))
+    reasons = assert_same(params, agents, order, [slice(None)], idx, t, e, n, status,
+                          ctype, cov)
+    assert {'accepted', 'gate', 'speed'} <= set(reasons)
+
+
 def test_bank_equals_filterpy_with_interleaved_batches(faulty_fixes):
     """The node's order: fixes of all collars interleaved (by stamp, ties shuffled) and cut
     into batches of random sizes; short chains and many open candidates."""

@@ -32,12 +32,22 @@ def add_filter_arguments(parser):
     g = parser.add_argument_group('GPS filter (gps_ingest parameters)')
     g.add_argument('--datum', default=None, metavar='LAT,LON[,ALT]',
                    help='ENU origin; default: the first valid fix')
+    g.add_argument('--motion-model', choices=('auto', 'fit', 'fixed'), default='auto',
+                   help='fit: each collar\'s movement model (an integrated Ornstein-'
+                        'Uhlenbeck velocity, random walk to constant velocity) and fix std '
+                        'refitted by maximum likelihood as its fixes arrive, the model below '
+                        'its prior and walk component; fixed: the model below for every '
+                        'collar; auto (default): fit unless --accel-std or --velocity-tau is '
+                        'given')
     g.add_argument('--accel-std', type=float, default=None,
                    help='white-noise acceleration std of the motion model (m/s^2); '
                         'default 0.05')
     g.add_argument('--velocity-tau', type=float, default=None,
                    help='velocity correlation time (s) of the correlated random walk; '
                         '0 = constant velocity; default 120')
+    g.add_argument('--walk-probability', type=float, default=0.05,
+                   help='prior probability per fix that a fitted collar walks (moves by the '
+                        'broad model above rather than its own)')
     g.add_argument('--default-position-std', type=float, default=5.0,
                    help='fix std (m) when the covariance type is UNKNOWN')
     g.add_argument('--position-std-floor', type=float, default=0.5,
@@ -52,7 +62,8 @@ def add_filter_arguments(parser):
 
 
 def filter_kwargs(args) -> dict:
-    return dict(accel_std=args.accel_std, velocity_tau=args.velocity_tau,
+    return dict(motion_model=args.motion_model, walk_probability=args.walk_probability,
+                accel_std=args.accel_std, velocity_tau=args.velocity_tau,
                 default_position_std=args.default_position_std,
                 position_std_floor=args.position_std_floor,
                 gate_probability=args.gate_probability, max_speed=args.max_speed,
@@ -106,5 +117,8 @@ def run(args) -> int:
           f'after its last, or silent longer than '
           f'{traj.meta["filter_params"].stale_after:g} s): {int(stale.sum())} of {stale.size}')
     print(format_counters(traj.meta['counters'], collar_spans(traj)))
+    if traj.meta.get('motion_fits') is not None:
+        from herd_ros.ingest.pipeline import format_motion_fits
+        print(format_motion_fits(traj.meta['motion_fits']))
     print(f'wrote {args.output} (smoother: {args.smoother})')
     return 0

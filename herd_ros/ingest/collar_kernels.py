@@ -455,10 +455,11 @@ def process_batch(collar, stamp, east, north, status, R,
 
 
 @_jit
-def record_states(collar, stamp, x, P, next_tick, count, rt, rx, rP):
-    """Append each accepted state to its collar's ring, first dropping the states no
-    longer needed (superseded by a later one at or before ``next_tick``); returns how many
-    were stored (fewer: a ring is full of needed states and must grow)."""
+def record_states(collar, stamp, x, P, motion, next_tick, count, rt, rx, rP, rm):
+    """Append each accepted state (and the motion model (σ_a, τ_v) that carries it
+    forward, ``motion`` (M, 2)) to its collar's ring, first dropping the states no longer
+    needed (superseded by a later one at or before ``next_tick``); returns how many were
+    stored (fewer: a ring is full of needed states and must grow)."""
     depth = rt.shape[1]
     for m in range(collar.shape[0]):
         i = collar[m]
@@ -467,6 +468,7 @@ def record_states(collar, stamp, x, P, next_tick, count, rt, rx, rP):
                 rt[i, k] = rt[i, k + 1]
                 rx[i, k] = rx[i, k + 1]
                 rP[i, k] = rP[i, k + 1]
+                rm[i, k] = rm[i, k + 1]
             count[i] -= 1
         if count[i] == depth:
             return m
@@ -474,13 +476,13 @@ def record_states(collar, stamp, x, P, next_tick, count, rt, rx, rP):
         rt[i, k] = stamp[m]
         rx[i, k] = x[m]
         rP[i, k] = P[m]
+        rm[i, k] = motion[m]
         count[i] = k + 1
     return collar.shape[0]
 
 
 @_jit
-def snapshot(tick, count, rt, rx, rP, accel_std, velocity_tau, stale_after, x, P, stale,
-              init):
+def snapshot(tick, count, rt, rx, rP, rm, stale_after, x, P, stale, init):
     for i in range(count.shape[0]):
         k = count[i] - 1
         while k >= 0 and rt[i, k] > tick:
@@ -492,7 +494,7 @@ def snapshot(tick, count, rt, rx, rP, accel_std, velocity_tau, stale_after, x, P
             init[i] = False
             continue
         tau = tick - rt[i, k]
-        _predict(rx[i, k], rP[i, k], tau, accel_std[i], velocity_tau[i], x[i], P[i])
+        _predict(rx[i, k], rP[i, k], tau, rm[i, k, 0], rm[i, k, 1], x[i], P[i])
         init[i] = True
         stale[i] = tau > stale_after
         if stale[i]:
@@ -616,28 +618,33 @@ def _nm_value(t, z, r, i, m, x, lo, hi, walk_accel, walk_tau, walk_prob, huber):
 def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_prob,
                        huber, max_evals, ftol, out_x, out_ll):
     """Maximise each collar's ℓ over log10 (τ_v, σ_a, σ_m²) by Nelder & Mead (1965) from
-    ``x0`` (N, 3) with initial steps ``step`` (3,) (a coordinate with step 0 is held),
+    ``x0`` (N, 3) with initial steps ``step`` (N, 3) (a coordinate with step 0 is held),
     within [lo, hi] (N, 3); stops when the simplex's values agree within ``ftol`` or
     after ``max_evals``. Writes the optimum to ``out_x`` (N, 3), ℓ to ``out_ll`` (N,)."""
-    nfree = 0
-    dims = np.empty(3, np.int64)
-    for d in range(3):
-        if step[d] != 0.0:
-            dims[nfree] = d
-            nfree += 1
-    S = np.empty((nfree + 1, 3))
-    F = np.empty(nfree + 1)
+    S = np.empty((4, 3))
+    F = np.empty(4)
     xc = np.empty(3)
     xr = np.empty(3)
     xe = np.empty(3)
     xk = np.empty(3)
+    dims = np.empty(3, np.int64)
     for i in range(t.shape[0]):
         m = n[i]
+        nfree = 0
+        for d in range(3):
+            if step[i, d] != 0.0:
+                dims[nfree] = d
+                nfree += 1
+        if nfree == 0:
+            out_x[i, :] = x0[i]
+            out_ll[i] = -_nm_value(t, z, r, i, m, out_x[i], lo, hi, walk_accel, walk_tau,
+                                   walk_prob, huber)
+            continue
         for j in range(nfree + 1):
             for d in range(3):
                 S[j, d] = x0[i, d]
             if j > 0:
-                S[j, dims[j - 1]] += step[dims[j - 1]]
+                S[j, dims[j - 1]] += step[i, dims[j - 1]]
             F[j] = _nm_value(t, z, r, i, m, S[j], lo, hi, walk_accel, walk_tau, walk_prob,
                              huber)
         evals = nfree + 1

@@ -77,6 +77,10 @@ class StateTimeline:
         segment: (K,) int, which (re)initialisation each state descends from; consecutive
             states of one segment are one Kalman predict/update apart (what RTS needs).
         velocity_tau: the filter's velocity correlation time (s; 0 = constant velocity).
+        motion: (K, 2) or None: per state, the motion model (σ_a, τ_v) that carries it
+            forward (a collar whose model is refitted as its fixes arrive,
+            :mod:`~herd_ros.ingest.motion_refit`); None = ``accel_std``, ``velocity_tau``
+            for every state.
     """
 
     t: np.ndarray
@@ -86,6 +90,7 @@ class StateTimeline:
     stale_after: float
     segment: np.ndarray | None = None
     velocity_tau: float = 0.0
+    motion: np.ndarray | None = None
 
     def __post_init__(self):
         if self.segment is None:
@@ -104,8 +109,12 @@ class StateTimeline:
             return (np.full((n, 4), np.nan), np.full((n, 4, 4), np.nan),
                     np.ones(n, bool), np.zeros(n, bool))
         tau = ticks - self.t[safe]
-        x, P = predict_states(self.x[safe], self.P[safe], tau, self.accel_std,
-                              self.velocity_tau)
+        if self.motion is None:
+            x, P = predict_states(self.x[safe], self.P[safe], tau, self.accel_std,
+                                  self.velocity_tau)
+        else:
+            x, P = predict_states(self.x[safe], self.P[safe], tau, self.motion[safe, 0],
+                                  self.motion[safe, 1])
         x[~initialised] = np.nan
         P[~initialised] = np.nan
         stale = ~initialised | (tau > self.stale_after)
@@ -123,6 +132,7 @@ class TimelineRecorder:
         self.x: list[np.ndarray] = []
         self.P: list[np.ndarray] = []
         self.segment: list[int] = []
+        self.motion: list[tuple[float, float]] = []
 
     def record(self) -> bool:
         """Record the filter's state if it changed since the last call; True if it did."""
@@ -134,6 +144,8 @@ class TimelineRecorder:
         self.x.append(self.filter.x.copy())
         self.P.append(self.filter.P.copy())
         self.segment.append(self.filter.counters['reinitialised'])
+        p = self.filter.params
+        self.motion.append((p.accel_std, p.velocity_tau))
         return True
 
     def timeline(self) -> StateTimeline:
@@ -142,7 +154,8 @@ class TimelineRecorder:
                              np.asarray(self.x, dtype=float).reshape(-1, 4),
                              np.asarray(self.P, dtype=float).reshape(-1, 4, 4),
                              p.accel_std, p.stale_after,
-                             np.asarray(self.segment, dtype=int), p.velocity_tau)
+                             np.asarray(self.segment, dtype=int), p.velocity_tau,
+                             np.asarray(self.motion, dtype=float).reshape(-1, 2))
 
 
 def resample_timelines(timelines: dict[str, StateTimeline], ticks, agents=None
@@ -363,16 +376,19 @@ class BatchHerdClock:
         self.rt = np.full((n, depth), np.nan)
         self.rx = np.zeros((n, depth, 4))
         self.rP = np.zeros((n, depth, 4, 4))
+        self.rm = np.zeros((n, depth, 2))
 
     @property
     def next_tick(self) -> float | None:
         return None if self._next_k is None else self._next_k * self.dt
 
-    def observe(self, collar, stamp, accepted, x, P) -> list[HerdSnapshot]:
+    def observe(self, collar, stamp, accepted, x, P, motion=None) -> list[HerdSnapshot]:
         """Take note of a batch of fixes (all of them, accepted or not, in arrival order)
         after the bank processed it: ``collar`` (M,), ``stamp`` (M,), ``accepted`` (M,)
-        and the states after the accepted ones ``x`` (M, 4), ``P`` (M, 4, 4). Returns the
-        snapshots completed (oldest first)."""
+        and the states after the accepted ones ``x`` (M, 4), ``P`` (M, 4, 4), with the
+        motion model (σ_a, τ_v) that carries each forward, ``motion`` (M, 2) (None: this
+        clock's ``accel_std``, ``velocity_tau`` of the collar). Returns the snapshots
+        completed (oldest first)."""
         collar = np.asarray(collar, dtype=np.int64)
         stamp = np.asarray(stamp, dtype=float)
         finite = np.isfinite(stamp)
@@ -384,11 +400,13 @@ class BatchHerdClock:
             self._first_stamp = first
         keep = np.asarray(accepted, bool) & finite
         rows = np.flatnonzero(keep)
+        if motion is None:
+            motion = np.column_stack([self.accel_std[collar], self.velocity_tau[collar]])
         while len(rows):
             done = collar_bank.KERNELS.record_states(
                 collar[rows], stamp[rows], np.ascontiguousarray(x[rows]),
-                np.ascontiguousarray(P[rows]), self.next_tick, self.count, self.rt, self.rx,
-                self.rP)
+                np.ascontiguousarray(P[rows]), np.ascontiguousarray(motion[rows], dtype=float),
+                self.next_tick, self.count, self.rt, self.rx, self.rP, self.rm)
             if done == len(rows):
                 break
             self._grow()
@@ -416,8 +434,10 @@ class BatchHerdClock:
         rt = np.full((n, 2 * depth), np.nan)
         rx = np.zeros((n, 2 * depth, 4))
         rP = np.zeros((n, 2 * depth, 4, 4))
+        rm = np.zeros((n, 2 * depth, 2))
         rt[:, :depth], rx[:, :depth], rP[:, :depth] = self.rt, self.rx, self.rP
-        self.rt, self.rx, self.rP = rt, rx, rP
+        rm[:, :depth] = self.rm
+        self.rt, self.rx, self.rP, self.rm = rt, rx, rP, rm
 
     def _ready(self, tick: float) -> bool:
         if tick > self.herd_time:
@@ -436,8 +456,7 @@ class BatchHerdClock:
         stale = np.empty(n, np.bool_)
         init = np.empty(n, np.bool_)
         collar_bank.KERNELS.snapshot(float(tick), self.count, self.rt, self.rx, self.rP,
-                                     self.accel_std, self.velocity_tau, self.stale_after, x,
-                                     P, stale, init)
+                                     self.rm, self.stale_after, x, P, stale, init)
         return HerdSnapshot(float(tick), list(self.agents), x[:, :2].copy(), x[:, 2:].copy(),
                             P[:, :2, :2].copy(), stale, init)
 

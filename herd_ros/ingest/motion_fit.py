@@ -287,7 +287,7 @@ def _search(t, z, r, n, log_tv, log_D, log_sm, fit_tv, fit_sm, walk, levels=4,
 
 def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
                position_std_floor: float = 0.5, default: MotionFit | None = None,
-               walk=None) -> list[MotionFit]:
+               walk=None, start=None) -> list[MotionFit]:
     """Fit each collar's motion model (module docstring).
 
     Args:
@@ -301,6 +301,8 @@ def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
             walk of D = 0.05 m²/s with σ_m = 5 m).
         walk: ``(accel_std, velocity_tau, probability)`` of the filter's walk component, or
             None (see :func:`innovation_loglik`).
+        start: per track, a previous :class:`MotionFit` to start the search from (a
+            refit on a running window), or None (searched afresh).
 
     Returns:
         One :class:`MotionFit` per track, in order.
@@ -323,7 +325,8 @@ def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
     t, z, r, n = _pack([cleaned[i] for i in enough], max_fixes)
     N = len(enough)
     unknown = ~np.isfinite(r) & (np.arange(t.shape[1])[None, :] < n[:, None])
-    fit_sm = bool(unknown.any())
+    sm_free = unknown.any(axis=1)         # per collar: some fixes without a covariance
+    fit_sm = bool(sm_free.any())
     # the random-walk limit: τ_v a tenth of the collar's 10th-percentile interval
     tv_rw = np.empty(N)
     for j in range(N):
@@ -332,7 +335,8 @@ def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
     floor2 = float(position_std_floor) ** 2
     from herd_ros.ingest import collar_bank
     if collar_bank.AVAILABLE:
-        rw, iou = _nelder_mead_fits(t, z, r, n, tv_rw, fit_sm, floor2, walk)
+        prev = [None] * N if start is None else [start[i] for i in enough]
+        rw, iou = _nelder_mead_fits(t, z, r, n, tv_rw, sm_free, floor2, walk, prev)
     else:
         ls0 = np.tile(np.log10(floor2) + np.linspace(0.0, 6.5, 7), (N, 1))
         if not fit_sm:
@@ -343,7 +347,7 @@ def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
         # IOU: τ_v free from 3 × the random-walk value to two days
         lt0 = np.linspace(np.log10(3.0 * tv_rw), np.full(N, np.log10(TAU_MAX)), 6).T
         iou = _search(t, z, r, n, lt0, lD0, ls0, True, fit_sm, walk)
-    k_extra = 1 if fit_sm else 0
+    k_extra = sm_free.astype(float)
     aic_rw = 2.0 * (1 + k_extra) - 2.0 * rw[3]
     aic_iou = 2.0 * (2 + k_extra) - 2.0 * iou[3]
     for j, i in enumerate(enough):
@@ -382,59 +386,91 @@ def moment_start(t, z, r, n, floor2):
     return D, s2
 
 
-def _nelder_mead_fits(t, z, r, n, tv_rw, fit_sm, floor2, walk, scout: int = 60):
+def _nelder_mead_fits(t, z, r, n, tv_rw, sm_free, floor2, walk, prev, scout: int = 60):
     """The random walk and the IOU of every collar, each as (log τ_v, log D, log σ_m², ℓ):
     a coarse grid on each collar's first ``scout`` fixes finds the basin (σ_m² about the
     variogram's value, :func:`moment_start`), then the compiled Nelder-Mead
     (:func:`herd_ros.ingest.collar_kernels.motion_nelder_mead`) polishes on the whole
     window. Searched in log (τ_v, σ_a, σ_m²), σ_a the acceleration std (the diffusion
-    D = σ_a² τ_v² runs off to infinity at the constant-velocity end; σ_a does not)."""
+    D = σ_a² τ_v² runs off to infinity at the constant-velocity end; σ_a does not). A
+    collar with a previous fit (``prev``) starts from it instead of the grid."""
     from herd_ros.ingest import collar_bank
     N = len(n)
     wa, wt, pw = walk if walk is not None else (0.0, 1.0, 0.5)
     D0, s20 = moment_start(t, z, r, n, floor2)
     short = np.minimum(n, scout)
-    ls = (np.log10(s20)[:, None] + np.array([-1.0, 0.0, 1.0])[None, :] if fit_sm
-          else np.zeros((N, 1)))
+    # σ_m is searched only for the collars with fixes of unknown covariance (each collar's
+    # search is its own: it does not depend on which collars are fitted with it)
+    ls = np.log10(s20)[:, None] + np.where(sm_free[:, None], [[-1.0, 0.0, 1.0]], 0.0)
     ls = np.maximum(ls, np.log10(floor2))
 
+    warm = np.array([p is not None for p in prev], dtype=bool)
+    cold = np.flatnonzero(~warm)
+
     def grid_best(lt, la):
-        """Best grid point per collar over log τ (N, a) × log σ_a (N, b) × ls."""
-        A, B, C = lt.shape[1], la.shape[1], ls.shape[1]
+        """Best grid point per cold collar over log τ (N, a) × log σ_a (N, b) × ls (the
+        warm ones get NaN: they start from their previous fit)."""
+        out = np.full((N, 3), np.nan)
+        if not len(cold):
+            return out
+        lt, la, lsc = lt[cold], la[cold], ls[cold]
+        A, B, C = lt.shape[1], la.shape[1], lsc.shape[1]
         TV = np.repeat(lt, B * C, axis=1)
         SA = np.tile(np.repeat(la, C, axis=1), (1, A))
-        SM = np.tile(ls, (1, A * B))
+        SM = np.tile(lsc, (1, A * B))
         tv = 10.0 ** TV
-        ll = innovation_loglik(t, z, r, short, tv, (10.0 ** SA * tv) ** 2, 10.0 ** SM, walk)
+        ll = innovation_loglik(t[cold], z[cold], r[cold], short[cold], tv,
+                               (10.0 ** SA * tv) ** 2, 10.0 ** SM, walk)
         k = np.argmax(ll, axis=1)
-        rows = np.arange(N)
-        return np.column_stack([TV[rows, k], SA[rows, k], SM[rows, k]])
+        rows = np.arange(len(cold))
+        out[cold] = np.column_stack([TV[rows, k], SA[rows, k], SM[rows, k]])
+        return out
 
     def polish(x0, lo, hi, step, evals):
         x = np.empty((N, 3))
         ll = np.empty(N)
         collar_bank.KERNELS.motion_nelder_mead(
             t, z, r, np.ascontiguousarray(n, dtype=np.int64), np.ascontiguousarray(x0),
-            np.ascontiguousarray(lo), np.ascontiguousarray(hi), np.asarray(step, float),
+            np.ascontiguousarray(lo), np.ascontiguousarray(hi),
+            np.ascontiguousarray(np.broadcast_to(step, (N, 3)), dtype=float),
             float(wa), float(wt), float(pw), HUBER_NIS, int(evals), 0.05, x, ll)
         return x, ll
 
-    sm_step = 0.5 if fit_sm else 0.0
+    # a warm start (a collar refitted from its last fit) takes smaller first steps; per
+    # collar, so that a collar's fit does not depend on which others are fitted with it
+    step0 = np.where(warm, 0.2, 0.5)[:, None]
+    sm_step = np.where(sm_free[:, None], step0, 0.0)
     sm_lo = np.full(N, np.log10(floor2))
     sm_hi = np.full(N, 4.0)
     # random walk: τ_v fixed; σ_a about the variogram's diffusion (D = σ_a² τ_rw²)
     la_rw = np.log10(np.sqrt(D0) / tv_rw)[:, None] + np.linspace(-1.5, 1.5, 5)[None, :]
     x0 = grid_best(np.log10(tv_rw)[:, None], la_rw)
+    for j in np.flatnonzero(warm):
+        p = prev[j]
+        s2 = p.position_std ** 2 if np.isfinite(p.position_std) else s20[j]
+        D = p.diffusion if p.model == 'rw' else D0[j]
+        x0[j] = (np.log10(tv_rw[j]), np.log10(math.sqrt(D) / tv_rw[j]),
+                 np.log10(max(s2, floor2)))
     lo = np.column_stack([np.log10(tv_rw), np.full(N, -8.0), sm_lo])
     hi = np.column_stack([np.log10(tv_rw), np.full(N, 4.0), sm_hi])
-    xr, llr = polish(x0, lo, hi, (0.0, 0.5, sm_step), 80)
+    xr, llr = polish(x0, lo, hi, np.hstack([np.zeros((N, 1)), step0, sm_step]), 80)
     # IOU: τ_v from 3 × the random-walk value to two days
     lt = np.linspace(np.log10(3.0 * tv_rw), np.full(N, np.log10(TAU_MAX)), 5).T
     la = np.tile(np.linspace(-5.0, 0.0, 6), (N, 1))
     x0 = grid_best(lt, la)
+    for j in np.flatnonzero(warm):
+        p = prev[j]
+        s2 = p.position_std ** 2 if np.isfinite(p.position_std) else s20[j]
+        if p.model == 'iou':
+            x0[j] = (np.log10(p.velocity_tau), np.log10(p.accel_std),
+                     np.log10(max(s2, floor2)))
+        else:                   # τ_v: the interval; σ_a: the random walk's diffusion
+            tau = min(max(float(np.median(np.diff(t[j, :n[j]]))), 3.0 * tv_rw[j]), TAU_MAX)
+            x0[j] = (np.log10(tau), np.log10(math.sqrt(p.diffusion) / tau),
+                     np.log10(max(s2, floor2)))
     lo_i = np.column_stack([np.log10(3.0 * tv_rw), np.full(N, -8.0), sm_lo])
     hi_i = np.column_stack([np.full(N, np.log10(TAU_MAX)), np.full(N, 2.0), sm_hi])
-    xi, lli = polish(x0, lo_i, hi_i, (0.5, 0.5, sm_step), 120)
+    xi, lli = polish(x0, lo_i, hi_i, np.hstack([step0, step0, sm_step]), 120)
 
     def as_d(x):
         return 2.0 * (x[:, 1] + x[:, 0])          # log10 D = 2 (log σ_a + log τ_v)

@@ -28,6 +28,7 @@ Steps (each a module of :mod:`herd_ros.ingest`):
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -169,115 +170,39 @@ def fixes_enu(fixes: pd.DataFrame, datum) -> tuple[np.ndarray, np.ndarray]:
     return e, n
 
 
-#: fixes per collar the motion fit uses (its latest accepted ones)
-FIT_WINDOW = 200
 #: the smallest measurement std (m) the motion fit may find for fixes without a covariance
 #: (RTLS/UWB tags are centimetre-precise; the filter's floor guards given covariances)
 FITTED_STD_FLOOR = 0.02
 
 
-def fit_collar_motion(fixes: pd.DataFrame, datum, reasons, agents, params: FilterParams,
-                      max_fixes: int = FIT_WINDOW) -> dict:
-    """{agent: :class:`~herd_ros.ingest.motion_fit.MotionFit`}: each collar's motion model
-    fitted on the fixes a first filter pass accepted (``reasons`` of :func:`run_filters`),
-    bursts and rejected fixes left out. A fix's variance per axis is the mean of its
-    covariance's diagonal where NavSatFix gives one, else unknown (fitted per collar)."""
-    from herd_ros.ingest.motion_fit import fit_motion
-    e, n = fixes_enu(fixes, datum)
-    t = fixes['time'].to_numpy(float)
-    known = ((fixes['position_covariance_type'].to_numpy(int) != 0)
-             & np.isfinite(fixes['cov_ee'].to_numpy(float))
-             & np.isfinite(fixes['cov_nn'].to_numpy(float)))
-    r = np.where(known, 0.5 * (fixes['cov_ee'].to_numpy(float)
-                               + fixes['cov_nn'].to_numpy(float)), np.nan)
-    r = np.where(known, np.maximum(r, params.position_std_floor ** 2), np.nan)
-    ok = np.isin(np.asarray(reasons, dtype=object), ('accepted', 'reinitialised'))
-    ids, uniques = pd.factorize(fixes['agent'].to_numpy(dtype=object))
-    codes = pd.Index(agents).get_indexer(uniques)[ids]
-    rows = np.flatnonzero(ok & (codes >= 0))
-    rows = rows[np.lexsort((t[rows], codes[rows]))]
-    bounds = np.searchsorted(codes[rows], np.arange(len(agents) + 1))
-    tracks = []
-    for i in range(len(agents)):
-        sl = rows[bounds[i]:bounds[i + 1]][-max_fixes:]
-        tracks.append((t[sl], np.column_stack([e[sl], n[sl]]), r[sl]))
+def refit_config(params: FilterParams, window: int = 200):
+    """The :class:`~herd_ros.ingest.motion_refit.RefitConfig` of a filter whose motion
+    model is fitted per collar: ``params``' walk component (its configured model if it has
+    none)."""
+    from herd_ros.ingest.motion_refit import RefitConfig
     walk = params.walk or (params.accel_std, params.velocity_tau)
-    fits = fit_motion(tracks, max_fixes=max_fixes, position_std_floor=FITTED_STD_FLOOR,
-                      walk=(walk[0], walk[1], params.walk_probability))
-    return dict(zip(agents, fits))
+    return RefitConfig(window=window, walk=(walk[0], walk[1], params.walk_probability),
+                       std_floor=FITTED_STD_FLOOR)
 
 
-#: the filter implementations of :func:`run_filters`
-ENGINES = ('bank', 'filterpy')
+#: velocity persistence (s) of the prior random walk of a collar not yet fitted
+PRIOR_VELOCITY_TAU = 0.1
 
 
-@dataclass
-class CollarSummary:
-    """What the offline path keeps of one collar's filter: its parameters, its counters
-    (keys :data:`~herd_ros.ingest.collar_filter.COUNTERS`) and its final time ``t``."""
-
-    params: FilterParams
-    counters: dict
-    t: float
-
-
-def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
-                progress: bool = False, engine: str = 'bank', motion: dict | None = None):
-    """Run every agent's collar filter over its fixes in stamp order (``datum`` None for a
-    planar table).
-
-    ``engine`` ``'bank'``: all collars in one :class:`~herd_ros.ingest.collar_bank.CollarBank`
-    (compiled; the default and the node's). ``'filterpy'``: one
-    :class:`~herd_ros.ingest.collar_filter.CollarFilter` per agent (the reference). Both
-    give the same outcomes and states (to rounding, ~1e-13 m; ``test_collar_bank.py``).
-    ``motion`` {agent: :class:`~herd_ros.ingest.motion_fit.MotionFit`} replaces the motion
-    model (and the std of fixes without a covariance) of the agents it names.
-
-    Returns:
-        (collars, timelines, reasons): dicts keyed by agent (:class:`CollarSummary`,
-        :class:`~herd_ros.ingest.herd_clock.StateTimeline`), and a (len(fixes),) array of
-        the outcome of every row (``'accepted'``, ``'reinitialised'`` or the rejection
-        reason; None for rows of agents not asked for), aligned with ``fixes``.
-    """
-    if engine not in ENGINES:
-        raise HerdInputError(f'engine must be one of {", ".join(ENGINES)}, got {engine!r}')
-    e, n = fixes_enu(fixes, datum)
-    t = fixes['time'].to_numpy(float)
-    status = fixes['status'].to_numpy(int)
-    cov_type = fixes['position_covariance_type'].to_numpy(int)
-    cov = np.zeros((len(fixes), 9))
-    cov[:, 0] = fixes['cov_ee'].to_numpy(float)
-    cov[:, 1] = cov[:, 3] = fixes['cov_en'].to_numpy(float)
-    cov[:, 4] = fixes['cov_nn'].to_numpy(float)
-    agent_col = fixes['agent'].to_numpy(dtype=object)
-    agents = sorted(pd.unique(agent_col)) if agents is None else list(agents)
-    per_agent = {a: with_motion(params, (motion or {}).get(a)) for a in agents}
-    if engine == 'bank' and collar_bank.AVAILABLE:
-        return _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progress,
-                         per_agent)
-    reasons = np.empty(len(fixes), dtype=object)
-    collars, timelines = {}, {}
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=len(fixes), desc='filtering', unit='fix', leave=False)
-    for agent in agents:
-        rows = np.flatnonzero(agent_col == agent)
-        rows = rows[np.argsort(t[rows], kind='stable')]
-        f = CollarFilter(per_agent[agent])
-        rec = TimelineRecorder(f)
-        for k in rows:
-            res = f.update(t[k], e[k], n[k], status=status[k], position_covariance=cov[k],
-                           position_covariance_type=cov_type[k])
-            reasons[k] = res.reason
-            rec.record()
-        collars[agent] = CollarSummary(per_agent[agent], dict(f.counters), f.t)
-        timelines[agent] = rec.timeline()
-        if bar is not None:
-            bar.update(len(rows))
-    if bar is not None:
-        bar.close()
-    return collars, timelines, reasons
+def with_walk(params: FilterParams) -> FilterParams:
+    """The filter of a collar whose motion is fitted, before its first fit: its configured
+    model becomes the walk component, and its own model is the random walk with the walk's
+    long-run diffusion (D = σ_a² τ_v², the fixes followed closely, without carrying a
+    velocity across the intervals) until the data say otherwise."""
+    if params.walk is not None:
+        return params
+    import dataclasses
+    tau = params.velocity_tau if params.velocity_tau > 0 else 120.0
+    D = (params.accel_std * tau) ** 2
+    return dataclasses.replace(params, accel_std=math.sqrt(D) / PRIOR_VELOCITY_TAU,
+                               velocity_tau=PRIOR_VELOCITY_TAU,
+                               walk_accel_std=params.accel_std,
+                               walk_velocity_tau=params.velocity_tau)
 
 
 def with_motion(params: FilterParams, fit) -> FilterParams:
@@ -298,55 +223,165 @@ def with_motion(params: FilterParams, fit) -> FilterParams:
                                walk_velocity_tau=walk[1], **extra)
 
 
-def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progress,
-              per_agent, chunk: int = 1_000_000):
+#: the filter implementations of :func:`run_filters`
+ENGINES = ('bank', 'filterpy')
+
+
+@dataclass
+class CollarSummary:
+    """What the offline path keeps of one collar's filter: its parameters (its last
+    motion model), its counters (keys :data:`~herd_ros.ingest.collar_filter.COUNTERS`),
+    its final time ``t`` and its last fitted motion model ``fit`` (None if never fitted)."""
+
+    params: FilterParams
+    counters: dict
+    t: float
+    fit: object = None
+
+
+def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
+                progress: bool = False, engine: str = 'bank', refit=None):
+    """Run every agent's collar filter over its fixes in stamp order (``datum`` None for a
+    planar table).
+
+    ``engine`` ``'bank'``: all collars in one :class:`~herd_ros.ingest.collar_bank.CollarBank`
+    (compiled; the default and the node's). ``'filterpy'``: one
+    :class:`~herd_ros.ingest.collar_filter.CollarFilter` per agent (the reference). Both
+    give the same outcomes and states (to rounding, ~1e-13 m; ``test_collar_bank.py``).
+    ``refit`` (a :class:`~herd_ros.ingest.motion_refit.RefitConfig`, or None): each
+    collar's motion model is refitted as its fixes arrive, on the causal schedule of
+    :mod:`~herd_ros.ingest.motion_refit` (the node's), ``params``' model its prior and
+    walk component.
+
+    Returns:
+        (collars, timelines, reasons): dicts keyed by agent (:class:`CollarSummary`,
+        :class:`~herd_ros.ingest.herd_clock.StateTimeline`), and a (len(fixes),) array of
+        the outcome of every row (``'accepted'``, ``'reinitialised'`` or the rejection
+        reason; None for rows of agents not asked for), aligned with ``fixes``.
+    """
+    if engine not in ENGINES:
+        raise HerdInputError(f'engine must be one of {", ".join(ENGINES)}, got {engine!r}')
+    e, n = fixes_enu(fixes, datum)
+    t = fixes['time'].to_numpy(float)
+    status = fixes['status'].to_numpy(int)
+    cov_type = fixes['position_covariance_type'].to_numpy(int)
+    cov = np.zeros((len(fixes), 9))
+    cov[:, 0] = fixes['cov_ee'].to_numpy(float)
+    cov[:, 1] = cov[:, 3] = fixes['cov_en'].to_numpy(float)
+    cov[:, 4] = fixes['cov_nn'].to_numpy(float)
+    agent_col = fixes['agent'].to_numpy(dtype=object)
+    agents = sorted(pd.unique(agent_col)) if agents is None else list(agents)
+    if refit is not None:
+        params = with_walk(params)
+    if engine == 'bank' and collar_bank.AVAILABLE:
+        return _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progress,
+                         refit)
+    from herd_ros.ingest.motion_refit import MotionRefitter, fix_variance
+    var = fix_variance(cov_type, cov[:, 0], cov[:, 4], params.position_std_floor)
+    reasons = np.empty(len(fixes), dtype=object)
+    collars, timelines = {}, {}
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=len(fixes), desc='filtering', unit='fix', leave=False)
+    for agent in agents:
+        rows = np.flatnonzero(agent_col == agent)
+        rows = rows[np.argsort(t[rows], kind='stable')]
+        f = CollarFilter(params)
+        rec = TimelineRecorder(f)
+        refitter = MotionRefitter(1, refit) if refit is not None else None
+        for k in rows:
+            res = f.update(t[k], e[k], n[k], status=status[k], position_covariance=cov[k],
+                           position_covariance_type=cov_type[k])
+            reasons[k] = res.reason
+            rec.record()
+            if refitter is not None:
+                refitter.observe([0], t[k:k + 1], e[k:k + 1], n[k:k + 1], var[k:k + 1],
+                                 [res.accepted])
+                if refitter.due([0], refitter.seen - 1)[0]:
+                    fits = refitter.refit([0])
+                    if fits:
+                        f.params = with_motion(params, fits[0])
+        collars[agent] = CollarSummary(f.params, dict(f.counters), f.t,
+                                       refitter.fits[0] if refitter is not None else None)
+        timelines[agent] = rec.timeline()
+        if bar is not None:
+            bar.update(len(rows))
+    if bar is not None:
+        bar.close()
+    return collars, timelines, reasons
+
+
+def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progress, refit,
+              chunk: int = 1_000_000):
     """:func:`run_filters` on a :class:`~herd_ros.ingest.collar_bank.CollarBank`: every
-    fix of the asked agents, sorted by agent then stamp (stable, as the reference)."""
+    fix of the asked agents, each collar's in stamp order (stable, as the reference). With
+    refits, in rounds: every collar's fixes up to its next refit point, then the next
+    round (:func:`~herd_ros.ingest.motion_refit.process_with_refits` refits between)."""
+    from herd_ros.ingest.motion_refit import (MotionRefitter, fix_variance,
+                                              process_with_refits, refit_due)
     ids, uniques = pd.factorize(agent_col)
     codes = pd.Index(agents).get_indexer(uniques)[ids]
     rows = np.flatnonzero(codes >= 0)
     rows = rows[np.lexsort((t[rows], codes[rows]))]
-    walked = [p for p in per_agent.values() if p.walk is not None]
-    bank = collar_bank.CollarBank(len(agents), walked[0] if walked else params)
-    for i, a in enumerate(agents):
-        p = per_agent[a]
-        bank.set_motion(i, p.accel_std, p.velocity_tau, p.default_position_std,
-                        p.position_std_floor)
-    R = bank.measurement_covariances(cov_type[rows], cov[rows], codes[rows])
+    who = codes[rows]
+    bounds = np.searchsorted(who, np.arange(len(agents) + 1))   # rows sorted by agent
+    bank = collar_bank.CollarBank(len(agents), params)
     m = len(rows)
     out = collar_bank.FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
                                np.empty((m, 4, 4)), np.empty(m, np.int64))
-    bar = None
-    if progress and m > chunk:
-        from tqdm import tqdm
-        bar = tqdm(total=m, desc='filtering', unit='fix', leave=False)
-    step = chunk if bar is not None else max(m, 1)
-    for s in range(0, m, step):
-        sl = slice(s, s + step)
-        r = rows[sl]
-        bank.process(codes[r], t[r], e[r], n[r], status[r], R[sl],
-                     out=collar_bank.FixBatch(out.outcome[sl], out.mahalanobis2[sl],
-                                              out.x[sl], out.P[sl], out.segment[sl]))
+    motion = np.empty((m, 2))
+    refitter = None
+    if refit is not None:
+        refitter = MotionRefitter(len(agents), refit)
+        # rounds: a fix's round is how many refit points its collar passed before it
+        rank = np.arange(m) - np.repeat(bounds[:-1], np.diff(bounds))
+        points = np.flatnonzero(refit_due(np.arange(1, max(m, 1) + 1), refit.first,
+                                          refit.max_interval)) + 1
+        order = np.lexsort((np.arange(m), np.searchsorted(points, rank + 1, side='left')))
+        var = fix_variance(cov_type, cov[:, 0], cov[:, 4], params.position_std_floor)
+        r = rows[order]
+        part, mo = process_with_refits(bank, refitter, codes[r], t[r], e[r], n[r],
+                                       status[r], cov_type[r], cov[r], var[r],
+                                       params.position_std_floor)
+        for name in ('outcome', 'mahalanobis2', 'x', 'P', 'segment'):
+            getattr(out, name)[order] = getattr(part, name)
+        motion[order] = mo
+    else:
+        motion[:, 0] = params.accel_std
+        motion[:, 1] = params.velocity_tau
+        R = bank.measurement_covariances(cov_type[rows], cov[rows], codes[rows])
+        bar = None
+        if progress and m > chunk:
+            from tqdm import tqdm
+            bar = tqdm(total=m, desc='filtering', unit='fix', leave=False)
+        step = chunk if bar is not None else max(m, 1)
+        for s in range(0, m, step):
+            sl = slice(s, s + step)
+            r = rows[sl]
+            bank.process(codes[r], t[r], e[r], n[r], status[r], R[sl],
+                         out=collar_bank.FixBatch(out.outcome[sl], out.mahalanobis2[sl],
+                                                  out.x[sl], out.P[sl], out.segment[sl]))
+            if bar is not None:
+                bar.update(len(r))
         if bar is not None:
-            bar.update(len(r))
-    if bar is not None:
-        bar.close()
+            bar.close()
     outcome, xs, Ps, seg = out.outcome, out.x, out.P, out.segment
     names = np.array(collar_bank.OUTCOMES, dtype=object)
     reasons = np.full(len(t), None, dtype=object)
     reasons[rows] = names[outcome]
     accepted = outcome <= collar_bank.REINITIALISED
-    who = codes[rows]
     collars, timelines = {}, {}
-    bounds = np.searchsorted(who, np.arange(len(agents) + 1))   # rows sorted by agent
     for i, agent in enumerate(agents):
         sl = slice(bounds[i], bounds[i + 1])
         keep = accepted[sl]
-        p = per_agent[agent]
+        fit = refitter.fits[i] if refitter is not None else None
+        p = with_motion(params, fit)
         timelines[agent] = StateTimeline(t[rows[sl]][keep], xs[sl][keep], Ps[sl][keep],
                                          p.accel_std, p.stale_after, seg[sl][keep],
-                                         p.velocity_tau)
-        collars[agent] = CollarSummary(p, bank.counter_dict(i), float(bank.t[i]))
+                                         p.velocity_tau,
+                                         motion[sl][keep] if refit is not None else None)
+        collars[agent] = CollarSummary(p, bank.counter_dict(i), float(bank.t[i]), fit)
     return collars, timelines, reasons
 
 
@@ -354,7 +389,7 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
                           smoother: str = 'none',
                           *, agents=None, trim: bool = True, progress: bool = False,
                           fir_taps: int = 30, fir_sigma: float = 6.0,
-                          engine: str = 'bank', motion: str = 'auto',
+                          engine: str = 'bank', motion_model: str = 'auto',
                           **filter_params) -> HerdTrajectory:
     """Filtered, synchronized herd trajectory from a fixes table.
 
@@ -372,12 +407,12 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
         fir_taps, fir_sigma: the FIR's n and σ (steps).
         engine: ``'bank'`` (compiled, default) or ``'filterpy'`` (the reference); see
             :func:`run_filters`.
-        motion: ``'fit'``: each collar's motion model (and the std of its fixes without a
-            covariance) fitted by maximum likelihood on the fixes a first pass accepted
-            (:func:`fit_collar_motion`, :mod:`~herd_ros.ingest.motion_fit`), then the
-            filters run again with it; ``'fixed'``: one model for all,
-            ``accel_std``/``velocity_tau``; ``'auto'`` (default): ``'fit'`` unless
-            ``accel_std`` or ``velocity_tau`` is given.
+        motion_model: ``'fit'``: each collar's motion model (and the std of its fixes
+            without a covariance) refitted by maximum likelihood as its fixes arrive
+            (:mod:`~herd_ros.ingest.motion_refit`, :mod:`~herd_ros.ingest.motion_fit`; the
+            configured model is the prior and the walk component); ``'fixed'``: one model
+            for all, ``accel_std``/``velocity_tau``; ``'auto'`` (default): ``'fit'``
+            unless ``accel_std`` or ``velocity_tau`` is given.
         **filter_params: :class:`FilterParams` fields (accel_std, default_position_std,
             gate_probability, max_speed, stale_after, ...); None or absent
             ``stale_after`` and ``reinit_after_gap`` come from the data
@@ -414,21 +449,16 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     else:
         datum = choose_datum(fixes, datum)
         log.info('datum lat %.9f lon %.9f alt %.3f', *datum)
-    if motion not in MOTIONS:
-        raise HerdInputError(f'motion must be one of {", ".join(MOTIONS)}, got {motion!r}')
-    if motion == 'auto':
+    if motion_model not in MOTIONS:
+        raise HerdInputError(f'motion_model must be one of {", ".join(MOTIONS)}, got '
+                             f'{motion_model!r}')
+    if motion_model == 'auto':
         given = {k for k in ('accel_std', 'velocity_tau') if filter_params.get(k) is not None}
-        motion = 'fixed' if given else 'fit'
-    fits = None
-    if motion == 'fit':
-        # a first pass over each collar's latest fixes tells outliers out of the fit
-        order = sorted(pd.unique(fixes['agent'])) if agents is None else list(agents)
-        tail = (fixes.sort_values('time', kind='stable').groupby('agent', sort=False)
-                .tail(2 * FIT_WINDOW).reset_index(drop=True))
-        _, _, first = run_filters(tail, datum, params, order, False, engine)
-        fits = fit_collar_motion(tail, datum, first, order, params, FIT_WINDOW)
+        motion_model = 'fixed' if given else 'fit'
+    refit = refit_config(params) if motion_model == 'fit' else None
     collars, timelines, reasons = run_filters(fixes, datum, params, agents, progress, engine,
-                                              fits)
+                                              refit)
+    fits = {a: c.fit for a, c in collars.items()} if refit is not None else None
     agents = list(collars)
     counters = {a: dict(collars[a].counters) for a in agents}
     empty = [a for a in agents if len(timelines[a].t) == 0]
@@ -465,7 +495,8 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     traj.meta.update({'datum': datum, 'dt': float(dt), 'counters': counters,
                       'smoother': smoother,
                       'filter_params': params, 'trimmed': (lead, trail),
-                      'motion_fits': fits, 'timelines': timelines,
+                      'motion_fits': fits, 'motion_model': motion_model,
+                      'timelines': timelines,
                       'fix_outcomes': reasons})
     return traj
 
@@ -511,4 +542,22 @@ def format_counters(counters: dict, spans: dict | None = None) -> str:
             lo, hi, n = spans.get(agent, (np.nan, np.nan, 0))
             row += [f'{lo / 3600:>8.2f}', f'{hi / 3600:>8.2f}', f'{n:>8}']
         lines.append('  '.join(row))
+    return '\n'.join(lines)
+
+
+def format_motion_fits(fits: dict) -> str:
+    """A small table of each collar's last fitted motion model: the model chosen by AIC,
+    τ_v (s), the long-run diffusion D (m²/s per axis), the speed std (m/s per axis), the
+    fix std σ_m (m; ``given`` where the fixes carried a covariance) and the fixes fitted;
+    ``prior`` for a collar with too few fixes to fit."""
+    width = max([len('agent')] + [len(a) for a in fits])
+    lines = [f'{"agent":<{width}}  {"motion":>6}  {"tau_v_s":>9}  {"D_m2_s":>9}  '
+             f'{"speed_ms":>8}  {"fix_std_m":>9}  {"fixes":>5}']
+    for agent, f in fits.items():
+        if f is None:
+            lines.append(f'{agent:<{width}}  {"prior":>6}')
+            continue
+        std = f'{f.position_std:9.2f}' if np.isfinite(f.position_std) else f'{"given":>9}'
+        lines.append(f'{agent:<{width}}  {f.model:>6}  {f.velocity_tau:9.3g}  '
+                     f'{f.diffusion:9.3g}  {f.speed_std:8.3g}  {std}  {f.n_fixes:>5}')
     return '\n'.join(lines)

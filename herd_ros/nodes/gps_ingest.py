@@ -76,7 +76,8 @@ from herd_ros.ingest.collar_bank import OUTCOMES, CollarBank
 from herd_ros.ingest.collar_filter import COUNTERS, STATUS_NO_FIX, FilterParams
 from herd_ros.ingest.geodesy import geodetic_to_enu
 from herd_ros.ingest.herd_clock import BatchHerdClock
-from herd_ros.ingest.pipeline import choose_datum
+from herd_ros.ingest.motion_refit import MotionRefitter, fix_variance, process_with_refits
+from herd_ros.ingest.pipeline import choose_datum, refit_config, with_walk
 from herd_ros.io.cdr import (NavSatFixes, OdometryEncoder, concat_fixes, decode_navsatfixes,
                              encode_pose_array, no_fixes, take_fixes)
 from herd_ros.model.model_file import check_agent_id
@@ -93,6 +94,7 @@ UNOBSERVED_VARIANCE = 1e6
 ODOM_DEPTH = 10
 
 EXECUTORS = ('events', 'single_threaded')
+MOTION_MODELS = ('fit', 'fixed')
 
 DEFAULTS = {
     'agents': Param([], 'collar ids in the order of /herd/poses; '
@@ -103,7 +105,18 @@ DEFAULTS = {
     'default_position_std': Param(5.0, 'horizontal std (m) of a fix whose covariance is '
                                        'UNKNOWN', range=(1e-3, 1e4)),
     'position_std_floor': Param(0.5, 'smallest fix std (m) ever trusted', range=(0.0, 1e4)),
-    'accel_std': Param(0.05, 'std of the white-noise acceleration (m/s²) of the motion model',
+    'motion_model': Param('fit', 'fit: each collar\'s motion model (an integrated '
+                                 'Ornstein-Uhlenbeck velocity) and fix std refitted by maximum '
+                                 'likelihood as its fixes arrive, the model of accel_std and '
+                                 'velocity_tau its prior and walk component; fixed: that model '
+                                 'for every collar', choices=MOTION_MODELS),
+    'motion_window': Param(200, 'accepted fixes per collar its motion model is fitted on',
+                           range=(20, 100000)),
+    'walk_probability': Param(0.05, 'prior probability per fix that a fitted collar walks '
+                                    '(moves by the broad model of accel_std and velocity_tau)',
+                              range=(1e-6, 0.999999)),
+    'accel_std': Param(0.05, 'std of the white-noise acceleration (m/s²) of the motion model '
+                             '(with motion_model fit: of the walk component and the prior)',
                        range=(0.0, 100.0), live=True),
     'velocity_tau': Param(120.0, 'velocity correlation time (s) of the motion model; 0 = '
                                  'constant velocity', range=(0.0, 1e6)),
@@ -152,7 +165,7 @@ DEFAULTS = {
 FILTER_FIELDS = ('accel_std', 'velocity_tau', 'default_position_std', 'position_std_floor',
                  'gate_probability', 'max_speed', 'cruise_speed', 'sprint_s', 'stale_after',
                  'initial_velocity_std', 'confirm_fixes', 'reacquire_fixes',
-                 'confirm_fixes_lost', 'reinit_after_gap')
+                 'confirm_fixes_lost', 'reinit_after_gap', 'walk_probability')
 
 
 
@@ -197,6 +210,17 @@ class GpsIngestConfig:
             self.filter_params = FilterParams(**filt)
         except HerdInputError as exc:
             raise ParameterError(str(exc).replace('filter parameter ', '')) from None
+        if p['motion_model'] not in MOTION_MODELS:
+            raise ParameterError(f'motion_model must be one of {", ".join(MOTION_MODELS)}, '
+                                 f'got {p["motion_model"]!r}')
+        self.motion_model = p['motion_model']
+        window = p['motion_window']
+        if isinstance(window, bool) or not isinstance(window, int) or window < 20:
+            raise ParameterError(f'motion_window must be an integer ≥ 20, got {window!r}')
+        self.refit = None
+        if self.motion_model == 'fit':
+            self.filter_params = with_walk(self.filter_params)
+            self.refit = refit_config(self.filter_params, window)
         self.frame_id = str(p['frame_id']).strip()
         if not self.frame_id:
             raise ParameterError('frame_id must be a non-empty frame name')
@@ -269,6 +293,8 @@ class GpsIngest(Node):
         CollarBank.warm_up()           # compiled code loaded before the first fix
         BatchHerdClock.warm_up()
         self.bank = CollarBank(len(cfg.agents), cfg.filter_params)
+        self.refitter = (MotionRefitter(len(cfg.agents), cfg.refit) if cfg.refit is not None
+                         else None)
         self.clock = self._new_clock()
         self._frames = collar_frames(cfg.agents)      # frame_id -> collar (fix_topic)
         self._inbox: list[tuple] = []     # (collar index, -1 on fix_topic; serialized fix)
@@ -325,6 +351,12 @@ class GpsIngest(Node):
     # -- live parameters (accel_std, max_speed, cruise_speed, sprint_s) --------------------
     def _live_filter_params(self, name, value):
         import dataclasses
+        if name == 'accel_std' and self.cfg.refit is not None:
+            # fitted collars: the parameter is the walk component's (and the prior's)
+            p = dataclasses.replace(self.cfg.filter_params, walk_accel_std=None,
+                                    walk_velocity_tau=None, accel_std=float(value),
+                                    velocity_tau=self.cfg.filter_params.walk[1])
+            return with_walk(p)
         return dataclasses.replace(self.cfg.filter_params, **{name: float(value)})
 
     def _validate_live(self, name, value):
@@ -342,7 +374,14 @@ class GpsIngest(Node):
         self.cfg.filter_params = self._live_filter_params(name, value)
         self.bank.params = self.cfg.filter_params
         if name == 'accel_std':
-            self.bank.accel_std[:] = self.cfg.filter_params.accel_std
+            if self.refitter is None:
+                self.bank.accel_std[:] = self.cfg.filter_params.accel_std
+            else:       # the collars not fitted yet move by the new prior
+                unfitted = np.array([f is None for f in self.refitter.fits])
+                self.bank.accel_std[unfitted] = self.cfg.filter_params.accel_std
+                w = self.cfg.filter_params.walk
+                self.refitter.config.walk = (w[0], w[1],
+                                             self.cfg.filter_params.walk_probability)
 
     # -- one fix ------------------------------------------------------------------------
     def on_fix(self, collar: int, data: bytes):
@@ -428,8 +467,17 @@ class GpsIngest(Node):
         with np.errstate(invalid='ignore'):
             e, n, _ = geodetic_to_enu(fixes.lat, fixes.lon, fixes.alt, lat0, lon0, alt0,
                                       nan_alt=alt0)
-        batch = self.bank.process(idx, stamp, e, n, fixes.status,
-                                  self.bank.measurement_covariances(fixes.cov_type, fixes.cov))
+        if self.refitter is None:
+            batch = self.bank.process(idx, stamp, e, n, fixes.status,
+                                      self.bank.measurement_covariances(fixes.cov_type,
+                                                                        fixes.cov, idx))
+            motion = None
+        else:
+            floor = self.cfg.filter_params.position_std_floor
+            var = fix_variance(fixes.cov_type, fixes.cov[:, 0], fixes.cov[:, 4], floor)
+            batch, motion = process_with_refits(self.bank, self.refitter, idx, stamp, e, n,
+                                                fixes.status, fixes.cov_type, fixes.cov, var,
+                                                floor)
         accepted = batch.accepted
         frame = self.cfg.frame_id
         done = np.flatnonzero(accepted)
@@ -464,7 +512,8 @@ class GpsIngest(Node):
             if j > start:
                 sl = slice(start, j)
                 for snap in self.clock.observe(idx[sl], stamp[sl], accepted[sl],
-                                               batch.x[sl], batch.P[sl]):
+                                               batch.x[sl], batch.P[sl],
+                                               None if motion is None else motion[sl]):
                     self.poses_pub.publish(encode_pose_array(snap.time, frame,
                                                              snap.positions))
                     self.ticks_published += 1

@@ -1,0 +1,232 @@
+"""Each collar's motion model refitted as its fixes arrive: the same causal schedule live
+and offline.
+
+A collar starts with the configured model (the prior: ``accel_std``, ``velocity_tau``,
+``default_position_std``). Right after its n-th fix (any outcome) for n in
+:func:`refit_due`'s schedule — 10, 20, 40, ..., doubling up to ``max_interval`` fixes
+apart, then every ``max_interval`` fixes — its model is refitted by maximum likelihood
+(:func:`herd_ros.ingest.motion_fit.fit_motion`, warm-started from its previous fit) on its
+last ``window`` accepted fixes, and that model filters its next fixes. The fit only ever
+sees fixes the filter already had, so the track stays causal, and since a collar's fit
+depends on its own fixes alone, the ``gps_ingest`` node (fixes in arrival order, in
+batches) and ``herd-ros ingest`` (a whole file at once) refit at the same fixes and give the
+same states.
+
+:func:`process_with_refits` drives a :class:`~herd_ros.ingest.collar_bank.CollarBank`
+through a batch: it splits the batch only where a refit must come before a collar's next
+fix, so refits due together are fitted together (one vectorised call).
+
+Plain numpy; no ROS.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from herd_ros.ingest.motion_fit import MotionFit, fit_motion
+
+#: first refit (fixes), the schedule doubles from here
+FIRST_REFIT = 20
+
+
+def refit_due(count, first: int = FIRST_REFIT, max_interval: int = 1000) -> np.ndarray:
+    """Whether a collar's model is refitted right after its ``count``-th fix (array):
+    ``first · 2^k`` while the step is below ``max_interval``, then every ``max_interval``."""
+    n = np.asarray(count, dtype=np.int64)
+    due = np.zeros(n.shape, bool)
+    g = first
+    while g < max_interval:
+        due |= n == g
+        g *= 2
+    due |= (n > g // 2) & ((n - g // 2) % max_interval == 0) & (n >= g)
+    return due
+
+
+@dataclass
+class RefitConfig:
+    """How :class:`MotionRefitter` refits: the ``window`` of accepted fixes (thinned to
+    ``fit_fixes`` for the fit), the schedule's
+    ``first`` refit and ``max_interval`` (fixes), the fewest accepted fixes a fit needs
+    (``min_fixes``), the filter's
+    walk component ``walk`` (σ_a, τ_v, probability) and the smallest std a fit may give the
+    fixes without a covariance, ``std_floor`` (m)."""
+
+    window: int = 200
+    fit_fixes: int = 200
+    first: int = FIRST_REFIT
+    min_fixes: int = 16
+    max_interval: int = 1000
+    walk: tuple | None = None
+    std_floor: float = 0.02
+
+
+class MotionRefitter:
+    """The accepted fixes of N collars in running windows, and their fitted models."""
+
+    def __init__(self, n: int, config: RefitConfig | None = None):
+        self.config = config or RefitConfig()
+        W = int(self.config.window)
+        self.n = int(n)
+        self.seen = np.zeros(self.n, np.int64)        # fixes processed per collar
+        self.t = np.zeros((self.n, W))
+        self.z = np.zeros((self.n, W, 2))
+        self.r = np.full((self.n, W), np.nan)
+        self.count = np.zeros(self.n, np.int64)       # accepted fixes stored (≤ W)
+        self.head = np.zeros(self.n, np.int64)        # next ring slot
+        self.fits: list[MotionFit | None] = [None] * self.n
+        self.refits = 0
+
+    def due(self, collar, start_counts=None) -> np.ndarray:
+        """(M,) whether each fix of a batch (collar indices, in order) is a refit point,
+        counting from ``start_counts`` (default: the fixes seen so far)."""
+        collar = np.asarray(collar, dtype=np.int64)
+        seen = self.seen if start_counts is None else start_counts
+        order = np.argsort(collar, kind='stable')
+        c = collar[order]
+        first = np.r_[True, c[1:] != c[:-1]] if len(c) else np.zeros(0, bool)
+        start = np.flatnonzero(first)
+        rank = np.arange(len(c)) - np.repeat(start, np.diff(np.r_[start, len(c)]))
+        counts = np.empty(len(c), np.int64)
+        counts[order] = seen[c] + rank + 1
+        return refit_due(counts, self.config.first, self.config.max_interval)
+
+    def observe(self, collar, stamp, east, north, var, accepted):
+        """Take note of processed fixes (in order): every one counts towards the schedule;
+        the accepted ones enter their collar's window (``var``: the fix's variance per axis,
+        NaN if unknown)."""
+        collar = np.asarray(collar, dtype=np.int64)
+        np.add.at(self.seen, collar, 1)
+        rows = np.flatnonzero(np.asarray(accepted, bool))
+        if not len(rows):
+            return
+        W = self.t.shape[1]
+        c = collar[rows]
+        order = np.argsort(c, kind='stable')
+        rows, c = rows[order], c[order]
+        start = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
+        sizes = np.diff(np.r_[start, len(c)])
+        rank = np.arange(len(c)) - np.repeat(start, sizes)
+        from_end = np.repeat(sizes, sizes) - rank          # 1 for a collar's last fix
+        keep = from_end <= W                               # older ones would be overwritten
+        rows, c, rank = rows[keep], c[keep], rank[keep]
+        slot = (self.head[c] + rank) % W
+        self.t[c, slot] = np.asarray(stamp, float)[rows]
+        self.z[c, slot, 0] = np.asarray(east, float)[rows]
+        self.z[c, slot, 1] = np.asarray(north, float)[rows]
+        self.r[c, slot] = np.asarray(var, float)[rows]
+        u = c[np.r_[True, c[1:] != c[:-1]]]
+        self.head[u] = (self.head[u] + sizes) % W
+        self.count[u] = np.minimum(self.count[u] + sizes, W)
+
+    def window(self, i: int):
+        """Collar ``i``'s window, oldest first, thinned to at most ``fit_fixes`` (every
+        k-th fix, the newest kept: the IOU is exact at any interval, so a thinned window
+        is still a likelihood of the same model, over the same span): (t, z, r)."""
+        W = self.t.shape[1]
+        k = self.count[i]
+        idx = (self.head[i] - k + np.arange(k)) % W
+        stride = -(-k // self.config.fit_fixes)
+        idx = idx[::-1][::stride][::-1]
+        return self.t[i, idx], self.z[i, idx], self.r[i, idx]
+
+    def refit(self, collars) -> dict:
+        """Refit ``collars`` (those with at least ``min_fixes`` accepted in their window);
+        {collar: MotionFit} of the new models."""
+        collars = [int(i) for i in collars if self.count[int(i)] >= self.config.min_fixes]
+        if not collars:
+            return {}
+        fits = fit_motion([self.window(i) for i in collars],
+                          min_fixes=self.config.min_fixes, max_fixes=self.config.fit_fixes,
+                          position_std_floor=self.config.std_floor, walk=self.config.walk,
+                          start=[self.fits[i] for i in collars])
+        out = {}
+        for i, f in zip(collars, fits):
+            if f.model == 'prior':
+                continue
+            self.fits[i] = f
+            out[i] = f
+        self.refits += len(out)
+        return out
+
+
+def fix_variance(cov_type, cov_ee, cov_nn, floor: float) -> np.ndarray:
+    """A fix's variance per axis for the fit: the mean of its covariance's diagonal
+    (floored) where NavSatFix gives one, NaN (unknown: fitted) otherwise."""
+    cov_ee = np.asarray(cov_ee, float)
+    cov_nn = np.asarray(cov_nn, float)
+    known = (np.asarray(cov_type) != 0) & np.isfinite(cov_ee) & np.isfinite(cov_nn)
+    with np.errstate(invalid='ignore'):
+        v = np.maximum(0.5 * (cov_ee + cov_nn), floor * floor)
+    return np.where(known, v, np.nan)
+
+
+def apply_fit(bank, i: int, fit: MotionFit, floor: float):
+    """Collar ``i`` of ``bank`` moves by ``fit`` from its next fix on (its fixed std too,
+    if fitted; the floor of given covariances drops to it)."""
+    if math.isfinite(fit.position_std):
+        bank.set_motion(i, fit.accel_std, fit.velocity_tau, fit.position_std,
+                        min(fit.position_std, floor))
+    else:
+        bank.set_motion(i, fit.accel_std, fit.velocity_tau)
+
+
+def split_points(collar, due) -> list[int]:
+    """Where to split a batch so that each refit comes before its collar's next fix:
+    positions p such that the batch is processed as [0, p₁), [p₁, p₂), ... with the refits
+    due in a part done after it. The fewest splits (greedy stabbing of the intervals
+    (boundary, next fix of the collar])."""
+    collar = np.asarray(collar, dtype=np.int64)
+    pos = np.flatnonzero(due)
+    if not len(pos):
+        return []
+    order = np.argsort(collar, kind='stable')
+    nxt = np.full(len(collar), len(collar), np.int64)
+    same = collar[order[1:]] == collar[order[:-1]]
+    nxt[order[:-1][same]] = order[1:][same]
+    ends = nxt[pos]                       # the refit must happen before this position
+    inside = ends < len(collar)
+    cuts = []
+    last = -1
+    for p, e in sorted(zip(pos[inside], ends[inside]), key=lambda pe: pe[1]):
+        if p < last:                      # a cut at `last` (≤ e) already follows p
+            continue
+        cuts.append(int(e))
+        last = int(e)
+    return cuts
+
+
+def process_with_refits(bank, refitter: MotionRefitter, collar, stamp, east, north,
+                        status, cov_type, cov9, var, floor: float):
+    """:meth:`CollarBank.process` of a batch with the refits it contains (module
+    docstring): returns (FixBatch, motion (M, 2)) — ``motion`` the model (σ_a, τ_v) each
+    fix's collar had when the fix was processed (what carries its state forward).
+    ``cov_type``, ``cov9``: the fixes' NavSatFix covariances (their R is formed part by
+    part: a refit changes the std of its collar's fixes without one); ``var``: the fixes'
+    variances for the fit (:func:`fix_variance`); ``floor``: the filter's std floor."""
+    from herd_ros.ingest.collar_bank import FixBatch
+    collar = np.ascontiguousarray(collar, dtype=np.int64)
+    m = len(collar)
+    out = FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
+                   np.empty((m, 4, 4)), np.empty(m, np.int64))
+    motion = np.empty((m, 2))
+    due = refitter.due(collar)
+    cuts = split_points(collar, due) + [m]
+    start = 0
+    for stop in cuts:
+        if stop <= start:
+            continue
+        sl = slice(start, stop)
+        c = collar[sl]
+        motion[sl, 0] = bank.accel_std[c]
+        motion[sl, 1] = bank.velocity_tau[c]
+        part = FixBatch(out.outcome[sl], out.mahalanobis2[sl], out.x[sl], out.P[sl],
+                        out.segment[sl])
+        R = bank.measurement_covariances(cov_type[sl], cov9[sl], c)
+        bank.process(c, stamp[sl], east[sl], north[sl], status[sl], R, out=part)
+        refitter.observe(c, stamp[sl], east[sl], north[sl], var[sl], part.accepted)
+        for i, fit in refitter.refit(np.unique(c[due[sl]])).items():
+            apply_fit(bank, i, fit, floor)
+        start = stop
+    return out, motion

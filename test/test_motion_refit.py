@@ -1,0 +1,108 @@
+"""The causal refit schedule of the collar motion models (:mod:`herd_ros.ingest.motion_refit`).
+
+The node and the offline path refit at the same fixes whatever the batching: checked here
+on the bank driven in random batches against the whole file at once (and, in
+``test_gps_ingest_node.py``, on the running node against ``herd-ros ingest``'s path).
+"""
+import numpy as np
+import pandas as pd
+import pytest
+
+from herd_ros.ingest import collar_bank
+from herd_ros.ingest.collar_filter import FilterParams
+from herd_ros.ingest.motion_refit import (MotionRefitter, RefitConfig, fix_variance,
+                                          process_with_refits, refit_due, split_points)
+from herd_ros.ingest.pipeline import (auto_filter_params, fixes_enu, refit_config,
+                                      trajectory_from_fixes, with_walk)
+from herd_ros.synthesis.collar_errors import CollarErrorModel, simulate_collar_fixes
+from herd_ros.synthesis.cow_scenario import simulate_cow_herd
+
+
+def test_the_schedule_doubles_then_steps():
+    due = np.flatnonzero(refit_due(np.arange(1, 4000), first=20, max_interval=1000)) + 1
+    assert due.tolist() == [20, 40, 80, 160, 320, 640, 1640, 2640, 3640]
+
+
+def test_a_window_keeps_each_collars_last_accepted_fixes_in_order():
+    rng = np.random.default_rng(0)
+    r = MotionRefitter(3, RefitConfig(window=5, fit_fixes=5))
+    kept = {i: [] for i in range(3)}
+    for _ in range(30):
+        m = int(rng.integers(1, 40))
+        c = rng.integers(0, 3, m)
+        t = rng.random(m)
+        ok = rng.random(m) < 0.7
+        r.observe(c, t, t, -t, np.full(m, np.nan), ok)
+        for ci, ti, a in zip(c, t, ok):
+            if a:
+                kept[int(ci)].append(ti)
+    for i in range(3):
+        t, z, _ = r.window(i)
+        np.testing.assert_array_equal(t, kept[i][-5:])
+        np.testing.assert_array_equal(z[:, 1], -np.asarray(kept[i][-5:]))
+    assert r.seen.sum() > 0
+
+
+def test_splits_put_every_refit_before_its_collars_next_fix():
+    collar = np.array([0, 1, 0, 2, 1, 0, 2, 2, 1])
+    due = np.array([True, False, False, True, True, False, False, False, False])
+    cuts = split_points(collar, due)
+    # collar 0's refit (after position 0) before position 2; collar 2's (after 3) before
+    # 6; collar 1's (after 4) before 8: one cut at 2 serves only collar 0
+    bounds = [0] + cuts + [len(collar)]
+    for p in np.flatnonzero(due):
+        nxt = [q for q in range(p + 1, len(collar)) if collar[q] == collar[p]]
+        part = next(k for k in range(len(bounds) - 1) if bounds[k] <= p < bounds[k + 1])
+        assert not nxt or nxt[0] >= bounds[part + 1]
+    assert len(cuts) <= 3
+
+
+@pytest.fixture(scope='module')
+def collared_cows():
+    truth = simulate_cow_herd(n_cows=3, duration_s=36 * 3600.0, dt=10.0, seed=4)
+    raw = simulate_collar_fixes(truth, seed=4, model=CollarErrorModel.real_collar())
+    return raw
+
+
+@pytest.mark.skipif(not collar_bank.AVAILABLE, reason='no compiled kernels')
+def test_the_refits_do_not_depend_on_the_batching(collared_cows):
+    """Fixes in stamp order, cut into random batches (the node), give the states of the
+    whole file at once (the offline rounds)."""
+    raw = collared_cows
+    datum = raw.attrs['datum']
+    offline = trajectory_from_fixes(raw, datum=datum, trim=False, motion_model='fit')
+    params = with_walk(FilterParams(**auto_filter_params(raw)))
+    agents = list(offline.agents)
+    fixes = raw.sort_values('time', kind='stable').reset_index(drop=True)
+    e, n = fixes_enu(fixes, datum)
+    cov = np.zeros((len(fixes), 9))
+    cov[:, 0], cov[:, 4] = fixes['cov_ee'], fixes['cov_nn']
+    cov[:, 1] = cov[:, 3] = fixes['cov_en']
+    ctype = fixes['position_covariance_type'].to_numpy(int)
+    idx = pd.Index(agents).get_indexer(fixes['agent'])
+    bank = collar_bank.CollarBank(len(agents), params)
+    refitter = MotionRefitter(len(agents), refit_config(params))
+    var = fix_variance(ctype, cov[:, 0], cov[:, 4], params.position_std_floor)
+    rng = np.random.default_rng(1)
+    cuts = np.sort(rng.choice(np.arange(1, len(fixes)), 60, replace=False))
+    t = fixes['time'].to_numpy(float)
+    status = fixes['status'].to_numpy(int)
+    xs = []
+    for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(fixes)]):
+        sl = slice(a, b)
+        batch, _ = process_with_refits(bank, refitter, idx[sl], t[sl], e[sl], n[sl],
+                                       status[sl], ctype[sl], cov[sl], var[sl],
+                                       params.position_std_floor)
+        xs.append(batch.x)
+    x = np.concatenate(xs)
+    assert refitter.refits >= 3 * 4
+    for i, agent in enumerate(agents):
+        mine = idx == i
+        got = x[mine][np.isfinite(x[mine][:, 0])]
+        want = offline.meta['timelines'][agent].x
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
+        mine, theirs = refitter.fits[i], offline.meta['motion_fits'][agent]
+        assert mine.model == theirs.model
+        np.testing.assert_array_equal(
+            [mine.velocity_tau, mine.diffusion, mine.position_std, mine.loglik],
+            [theirs.velocity_tau, theirs.diffusion, theirs.position_std, theirs.loglik])
