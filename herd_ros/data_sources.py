@@ -51,7 +51,15 @@ def planar_fixes_from_runs(path, raw=None) -> pd.DataFrame:
 def load_runs(path, dt: float | None = None, smoother: str = 'none',
               **filter_params) -> tuple[list[HerdTrajectory], list | None]:
     """Runs and the datum (lat, lon, alt) they are relative to (None for planar data).
-    ``dt`` None: the herd clock step comes from the fix intervals."""
+    ``dt`` None: the herd clock step comes from the fix intervals. Fixes are tracked with
+    one motion model for every collar unless ``motion_model`` says otherwise: the herd law
+    is learned at the clock's step, and on the shipped real herds it predicts the fixed
+    model's track better than the per-collar fitted one, which follows the fixes' small
+    jitter (README, "Tracking")."""
+    filter_params.setdefault('motion_model', 'fixed')
+    if filter_params['motion_model'] == 'auto':
+        filter_params['motion_model'] = 'fixed'
+
     path = Path(path)
     if not path.exists():
         raise HerdInputError(f'{path}: no such file or directory')

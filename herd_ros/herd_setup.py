@@ -127,8 +127,7 @@ def herd_setup_from_fixes(fixes: pd.DataFrame, *, dt: float | None = None,
              float(np.median(fixes['lon'].to_numpy()[valid])), 0.0]
     dt = float(dt) if dt is not None else max(auto_dt(fixes), float(min_dt))
     filt = auto_filter_params(fixes)
-    traj = trajectory_from_fixes(fixes, dt=dt, datum=datum, trim=True, motion_model='fit',
-                                 **filt)
+    traj = trajectory_from_fixes(fixes, dt=dt, datum=datum, trim=True, **filt)
     p = traj.positions
     have = np.isfinite(p).all(axis=-1)
     pts = p[have]

@@ -128,7 +128,8 @@ def test_bank_equals_filterpy_with_the_graze_walk_mixture(faulty_fixes):
     GPB1 mixture update of the kernel is the reference's, fix by fix."""
     params = FilterParams(**auto_filter_params(faulty_fixes, accel_std=0.002,
                                                velocity_tau=20.0), walk_accel_std=0.05,
-                          walk_velocity_tau=120.0, walk_probability=0.1)
+                          walk_velocity_tau=120.0, walk_probability=0.1,
+                          walk_position_std=5.0)
     agents, idx, t, e, n, status, ctype, cov = arrays(faulty_fixes)
     order = np.lexsort((t, idx))
     reasons = assert_same(params, agents, order, [slice(None)], idx, t, e, n, status,

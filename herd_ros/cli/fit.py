@@ -54,9 +54,10 @@ def add_arguments(p):
     p.add_argument('--se', choices=('sandwich', 'ols'), default='sandwich',
                    help='standard errors: cluster-robust sandwich or textbook OLS')
     p.add_argument('--dt', type=float, help='herd clock step (s) for GPS data')
-    p.add_argument('--smoother', choices=('none', 'rts', 'fir'), default='none',
+    p.add_argument('--smoother', choices=('none', 'rts', 'lag', 'fir'), default='none',
                    help='offline smoothing of GPS data')
     add_filter_arguments(p)
+    p.set_defaults(motion_model='fixed')      # the law is learned from the fixed-model track
     p.add_argument('--report', metavar='DIR', help='write figures and summary.json here')
     p.add_argument('--field', choices=('fitted', 'space-use'), default='fitted',
                    help='environment field: fitted = least squares with the rest of the law '

@@ -77,9 +77,12 @@ def add_arguments(parser):
     parser.add_argument('--dt', type=float, default=None,
                         help='herd clock step (s); default: the median fix interval, rounded '
                              'up to a round step')
-    parser.add_argument('--smoother', choices=('none', 'rts', 'fir'), default='none',
+    parser.add_argument('--smoother', choices=('none', 'rts', 'lag', 'fir'), default='none',
                         help='none: causal filter (as the node); rts: Rauch-Tung-Striebel; '
+                             'lag: fixed-lag smoother (each tick given the next --lag fixes); '
                              'fir: the paper\'s causal Gaussian FIR (n 30, sigma 6)')
+    parser.add_argument('--lag', type=int, default=3,
+                        help='fixes of delay of the fixed-lag smoother (default 3)')
     parser.add_argument('--format', choices=('auto', 'gps', 'movebank', 'gpx', 'bag'),
                         default='auto', help='input format')
     add_filter_arguments(parser)
@@ -99,8 +102,10 @@ def run(args) -> int:
     else:
         fixes = load_fixes(args.data, args.format)
         datum = parse_datum(args.datum)
-    traj = trajectory_from_fixes(fixes, args.dt, datum=datum,
-                                 smoother=args.smoother, progress=True, **filter_kwargs(args))
+    if args.lag < 0:
+        raise HerdInputError(f'--lag must be >= 0 fixes, got {args.lag}')
+    traj = trajectory_from_fixes(fixes, args.dt, datum=datum, smoother=args.smoother,
+                                 lag=args.lag, progress=True, **filter_kwargs(args))
     write_trajectory_csv(args.output, traj)
     lead, trail = traj.meta['trimmed']
     stale = traj.meta['stale']

@@ -62,8 +62,8 @@ EXPORTS = {
         # gate_sigma, v0, confirm, reacquire, confirm_lost, reinit_after_gap
         ('f8', 1, False), ('f8', 1, False), 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'i8', 'i8',
         'i8', 'f8',
-        # walk_accel (<= 0: none), walk_tau, walk_prob
-        'f8', 'f8', 'f8',
+        # walk_accel (<= 0: none), walk_tau, walk_prob, walk_r2
+        'f8', 'f8', 'f8', 'f8',
         # out: code, d2, x, P, segment
         ('i1', 1, True), ('f8', 1, True), ('f8', 2, True), ('f8', 3, True),
         ('i8', 1, True))),
@@ -73,11 +73,13 @@ EXPORTS = {
                              ('f8', 3, True))),
     'motion_loglik': ('void', (('f8', 2, False), ('f8', 3, False), ('f8', 2, False),
                                ('i8', 1, False), ('f8', 2, False), ('f8', 2, False),
-                               ('f8', 2, False), 'f8', 'f8', 'f8', 'f8', ('f8', 2, True))),
+                               ('f8', 2, False), 'f8', 'f8', 'f8', 'f8', 'f8',
+                               ('f8', 2, True))),
     'motion_nelder_mead': ('void', (('f8', 2, False), ('f8', 3, False), ('f8', 2, False),
                                     ('i8', 1, False), ('f8', 2, False), ('f8', 2, False),
                                     ('f8', 2, False), ('f8', 2, False), 'f8', 'f8', 'f8',
-                                    'f8', 'i8', 'f8', ('f8', 2, True), ('f8', 1, True))),
+                                    'f8', 'f8', 'i8', 'f8', ('f8', 2, True),
+                                    ('f8', 1, True))),
     'snapshot': ('void', ('f8', ('i8', 1, False), ('f8', 2, False), ('f8', 3, False),
                           ('f8', 4, False), ('f8', 3, False), 'f8', ('f8', 2, True),
                           ('f8', 3, True), ('b1', 1, True), ('b1', 1, True))),

@@ -246,5 +246,6 @@ class CollarBank:
             int(p.confirm_fixes_lost), float(p.reinit_after_gap),
             float(p.walk[0]) if p.walk is not None else 0.0,
             float(p.walk[1]) if p.walk is not None else 0.0, float(p.walk_probability),
+            float(p.walk_position_std or 0.0) ** 2,
             out_code, out_d2, out_x, out_P, out_seg)
         return out

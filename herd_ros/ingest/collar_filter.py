@@ -142,6 +142,11 @@ class FilterParams:
             outlier. So a fitted model tight enough to average a resting animal's fixes
             still follows a walk at once.
         walk_probability: prior probability π_w of the walk component per fix.
+        walk_position_std: std (m) added to every fix's under the walk component (None =
+            none): the walk stands for "something unusual", a fast move or a fix a few
+            metres off, so a fix that neither component's gate takes as it is can still be
+            taken at a discount (a scale mixture in R as well as Q: a heavy-tailed
+            measurement model in place of a bare gate).
     """
 
     accel_std: float = 0.2
@@ -161,6 +166,7 @@ class FilterParams:
     walk_accel_std: float | None = None
     walk_velocity_tau: float | None = None
     walk_probability: float = 0.05
+    walk_position_std: float | None = None
 
     def __post_init__(self):
         positive = ('accel_std', 'default_position_std', 'position_std_floor', 'max_speed',
@@ -488,9 +494,10 @@ class CollarFilter:
             xw = Fw @ self.x
             Pw = Fw @ self.P @ Fw.T + Qw
             yw = z - xw[:2]
-            Sw = Pw[:2, :2] + r
+            rw = r + (p.walk_position_std or 0.0) ** 2 * np.eye(2)
+            Sw = Pw[:2, :2] + rw
             d2w = float(yw @ np.linalg.solve(Sw, yw))
-            walk = (xw, Pw, Sw, d2w)
+            walk = (xw, Pw, Sw, d2w, rw)
             gate_d2 = min(d2, d2w)          # an outlier under both components
         # a fix that continues an open chain better than it fits the track belongs to the
         # chain: a burst cannot make itself plausible by lasting long enough for the
@@ -516,7 +523,7 @@ class CollarFilter:
         return FixResult(True, 'accepted', '', d2)
 
     # -- internals ------------------------------------------------------------------------
-    def _mixture_update(self, z, r, xg, Pg, Sg, d2g, xw, Pw, Sw, d2w):
+    def _mixture_update(self, z, r, xg, Pg, Sg, d2g, xw, Pw, Sw, d2w, rw):
         """GPB1 step of the graze/walk mixture (FilterParams.walk): each component's
         Kalman update (Joseph form, as filterpy), weights ∝ π_j N(y_j; 0, S_j), the mixture
         collapsed to its mean and covariance (Bar-Shalom, Li & Kirubarajan 2001,
@@ -528,10 +535,10 @@ class CollarFilter:
         parts = []
         H = np.zeros((2, 4))
         H[0, 0] = H[1, 1] = 1.0
-        for x, P, S in ((xg, Pg, Sg), (xw, Pw, Sw)):
+        for x, P, S, R in ((xg, Pg, Sg, r), (xw, Pw, Sw, rw)):
             K = P @ H.T @ np.linalg.inv(S)
             A = np.eye(4) - K @ H
-            parts.append((x + K @ (z - x[:2]), A @ P @ A.T + K @ r @ K.T))
+            parts.append((x + K @ (z - x[:2]), A @ P @ A.T + K @ R @ K.T))
         w = (1.0 - ww, ww)
         x = w[0] * parts[0][0] + w[1] * parts[1][0]
         P = sum(wj * (Pj + np.outer(xj - x, xj - x)) for wj, (xj, Pj) in zip(w, parts))

@@ -304,15 +304,17 @@ def process_batch(collar, stamp, east, north, status, R,
                    cand_len, cand_t, cand_z, cand_r,
                    accel_std, velocity_tau, max_speed, cruise_speed, sprint_s, gate,
                    gate_sigma, v0, confirm, reacquire, confirm_lost, reinit_after_gap,
-                   walk_accel, walk_tau, walk_prob,
+                   walk_accel, walk_tau, walk_prob, walk_r2,
                    out_code, out_d2, out_x, out_P, out_seg):
     """CollarFilter.update for each fix of the batch, in order (see its comments);
     ``accel_std`` and ``velocity_tau`` are per collar (N,); ``walk_accel`` ≤ 0 = no walk
-    component (else the motion mixture of FilterParams.walk, prior weight ``walk_prob``)."""
+    component (else the motion mixture of FilterParams.walk, prior weight ``walk_prob``,
+    its fixes' variance raised by ``walk_r2``)."""
     xp = np.empty(4)
     Pp = np.empty((4, 4))
     xw = np.empty(4)
     Pw = np.empty((4, 4))
+    rw = np.empty((2, 2))
     keep_P = out_P.shape[0] > 0
     for m in range(collar.shape[0]):
         i = collar[m]
@@ -385,7 +387,11 @@ def process_batch(collar, stamp, east, north, status, R,
                     if walk_accel > 0.0:
                         # the walk component of the motion mixture (FilterParams.walk)
                         _predict(xi, Pi, tau, walk_accel, walk_tau, xw, Pw)
-                        d2w, detw = _mahalanobis2(xw, Pw, z0, z1, r)
+                        rw[0, 0] = r[0, 0] + walk_r2
+                        rw[1, 1] = r[1, 1] + walk_r2
+                        rw[0, 1] = r[0, 1]
+                        rw[1, 0] = r[1, 0]
+                        d2w, detw = _mahalanobis2(xw, Pw, z0, z1, rw)
                         gate_d2 = min(d2, d2w)      # an outlier under both components
                     y0 = z0 - xp[0]
                     y1 = z1 - xp[1]
@@ -408,7 +414,7 @@ def process_batch(collar, stamp, east, north, status, R,
                                         cruise_speed, sprint_s, gate_sigma)
                     if chain < 0 and walk_accel > 0.0:   # accepted: mixture update
                         _update(xp, Pp, z0, z1, r)
-                        _update(xw, Pw, z0, z1, r)
+                        _update(xw, Pw, z0, z1, rw)
                         lw = (math.log(walk_prob) - 0.5 * math.log(detw) - 0.5 * d2w) - (
                             math.log1p(-walk_prob) - 0.5 * math.log(det) - 0.5 * d2)
                         ww = 1.0 / (1.0 + math.exp(-lw)) if lw > -700.0 else 0.0
@@ -505,7 +511,8 @@ def snapshot(tick, count, rt, rx, rP, rm, stale_after, x, P, stale, init):
 
 
 @_jit
-def _loglik_one(t, z, r, i, m, tv, D, sm2, walk_accel, walk_tau, walk_prob, huber):
+def _loglik_one(t, z, r, i, m, tv, D, sm2, walk_accel, walk_tau, walk_prob, walk_r2,
+                huber):
     """ℓ of collar i's first ``m`` fixes at one parameter point (see motion_loglik)."""
     two_pi = 2.0 * math.pi
     use_walk = walk_accel > 0.0
@@ -542,7 +549,7 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk_accel, walk_tau, walk_prob, hube
                 ap = a[ax] + 2.0 * f * b[ax] + f * f * c[ax] + qpp
                 bp = gg * (b[ax] + f * c[ax]) + qpv
                 cp = gg * gg * c[ax] + qvv
-                S = ap + rk
+                S = ap + rk + (walk_r2 if j == 1 else 0.0)
                 pp = p[ax] + f * v[ax]
                 y = z[i, k, ax] - pp
                 nis += y * y / S
@@ -589,7 +596,7 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk_accel, walk_tau, walk_prob, hube
 
 @_jit
 def motion_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk_accel, walk_tau,
-                  walk_prob, huber, out):
+                  walk_prob, walk_r2, huber, out):
     """:func:`herd_ros.ingest.motion_fit.innovation_loglik` compiled: ``out[i, g]`` is
     collar i's log-likelihood at parameter point g (``walk_accel`` ≤ 0: no walk
     component; ``huber``: the χ²₂ level beyond which an innovation costs linearly, used
@@ -598,11 +605,12 @@ def motion_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk_accel,
         for g in range(velocity_tau.shape[1]):
             out[i, g] = _loglik_one(t, z, r, i, n[i], velocity_tau[i, g], diffusion[i, g],
                                     position_var[i, g], walk_accel, walk_tau, walk_prob,
-                                    huber)
+                                    walk_r2, huber)
 
 
 @_jit
-def _nm_value(t, z, r, i, m, x, lo, hi, walk_accel, walk_tau, walk_prob, huber):
+def _nm_value(t, z, r, i, m, x, lo, hi, walk_accel, walk_tau, walk_prob, walk_r2,
+              huber):
     """−ℓ at log10 parameters x = (τ_v, σ_a, σ_m²), clipped to [lo, hi] (σ_a the
     acceleration std: well defined from the random walk to the constant velocity; the
     diffusion is D = σ_a² τ_v²)."""
@@ -611,11 +619,12 @@ def _nm_value(t, z, r, i, m, x, lo, hi, walk_accel, walk_tau, walk_prob, huber):
     tv = 10.0 ** x[0]
     sa = 10.0 ** x[1]
     return -_loglik_one(t, z, r, i, m, tv, sa * sa * tv * tv, 10.0 ** x[2],
-                        walk_accel, walk_tau, walk_prob, huber)
+                        walk_accel, walk_tau, walk_prob, walk_r2, huber)
 
 
 @_jit
 def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_prob,
+                       walk_r2,
                        huber, max_evals, ftol, out_x, out_ll):
     """Maximise each collar's ℓ over log10 (τ_v, σ_a, σ_m²) by Nelder & Mead (1965) from
     ``x0`` (N, 3) with initial steps ``step`` (N, 3) (a coordinate with step 0 is held),
@@ -638,7 +647,7 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
         if nfree == 0:
             out_x[i, :] = x0[i]
             out_ll[i] = -_nm_value(t, z, r, i, m, out_x[i], lo, hi, walk_accel, walk_tau,
-                                   walk_prob, huber)
+                                   walk_prob, walk_r2, huber)
             continue
         for j in range(nfree + 1):
             for d in range(3):
@@ -646,7 +655,7 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
             if j > 0:
                 S[j, dims[j - 1]] += step[i, dims[j - 1]]
             F[j] = _nm_value(t, z, r, i, m, S[j], lo, hi, walk_accel, walk_tau, walk_prob,
-                             huber)
+                             walk_r2, huber)
         evals = nfree + 1
         while evals < max_evals:
             # order: best first
@@ -670,13 +679,14 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
                 xc[d] = s_ / nfree
             for d in range(3):
                 xr[d] = xc[d] + (xc[d] - S[nfree, d])
-            fr = _nm_value(t, z, r, i, m, xr, lo, hi, walk_accel, walk_tau, walk_prob, huber)
+            fr = _nm_value(t, z, r, i, m, xr, lo, hi, walk_accel, walk_tau, walk_prob,
+                           walk_r2, huber)
             evals += 1
             if fr < F[0]:
                 for d in range(3):
                     xe[d] = xc[d] + 2.0 * (xc[d] - S[nfree, d])
                 fe = _nm_value(t, z, r, i, m, xe, lo, hi, walk_accel, walk_tau, walk_prob,
-                               huber)
+                               walk_r2, huber)
                 evals += 1
                 if fe < fr:
                     S[nfree, :] = xe
@@ -693,7 +703,8 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
             for d in range(3):
                 base = xr[d] if outside else S[nfree, d]
                 xk[d] = xc[d] + 0.5 * (base - xc[d])
-            fk = _nm_value(t, z, r, i, m, xk, lo, hi, walk_accel, walk_tau, walk_prob, huber)
+            fk = _nm_value(t, z, r, i, m, xk, lo, hi, walk_accel, walk_tau, walk_prob,
+                           walk_r2, huber)
             evals += 1
             if fk < min(fr, F[nfree]):
                 S[nfree, :] = xk
@@ -703,7 +714,7 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
                 for d in range(3):
                     S[j, d] = S[0, d] + 0.5 * (S[j, d] - S[0, d])
                 F[j] = _nm_value(t, z, r, i, m, S[j], lo, hi, walk_accel, walk_tau,
-                                 walk_prob, huber)
+                                 walk_prob, walk_r2, huber)
                 evals += 1
         best = 0
         for j in range(1, nfree + 1):

@@ -128,12 +128,21 @@ def innovation_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk=No
         return np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=float), s))
 
     out = np.empty(shape)
-    wa, wt, pw = walk if walk is not None else (0.0, 1.0, 0.5)
+    wa, wt, pw, wr2 = _walk(walk)
     collar_bank.KERNELS.motion_loglik(
         arr(t, np.shape(t)), arr(z, np.shape(z)), arr(r, np.shape(r)),
         np.ascontiguousarray(n, dtype=np.int64), arr(velocity_tau), arr(diffusion),
-        arr(position_var), float(wa), float(wt), float(pw), HUBER_NIS, out)
+        arr(position_var), float(wa), float(wt), float(pw), float(wr2), HUBER_NIS, out)
     return out
+
+
+def _walk(walk):
+    """(σ_a, τ_v, π, added variance) of a walk component given as 3 or 4 numbers, or the
+    'none' values for the kernels."""
+    if walk is None:
+        return 0.0, 1.0, 0.5, 0.0
+    w = tuple(float(v) for v in walk)
+    return w if len(w) == 4 else w + (0.0,)
 
 
 def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
@@ -147,8 +156,9 @@ def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
         r: (N, K) measurement variance per axis (m²); NaN = unknown (``position_var``).
         n: (N,) fixes of each collar (entries beyond are padding).
         velocity_tau, diffusion, position_var: (N, G) the parameter points.
-        walk: None, or ``(accel_std, velocity_tau, probability)`` of the filter's walk
-            component (:attr:`~herd_ros.ingest.collar_filter.FilterParams.walk`): the
+        walk: None, or ``(accel_std, velocity_tau, probability[, added variance])`` of the
+            filter's walk component (:attr:`~herd_ros.ingest.collar_filter.FilterParams.walk`,
+            ``walk_position_std²``): the
             likelihood is then that of the graze/walk mixture the filter runs (GPB1: each
             step's density ``(1 − π) N(y; S_g) + π N(y; S_w)``, the posterior collapsed
             per axis), so the fit describes the animal between its walks.
@@ -170,11 +180,12 @@ def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
     b = np.zeros(shape)
     c = np.broadcast_to((D / (2.0 * tv))[..., None], shape).copy()
     ll = np.zeros(tv.shape)
-    comps = [(tv, accel, 0.0)]
+    comps = [(tv, accel, 0.0, 0.0)]
     if walk is not None:
-        wa, wt, pw = walk
-        comps = [(tv, accel, math.log1p(-pw)),
-                 (np.full(tv.shape, float(wt)), np.full(tv.shape, float(wa)), math.log(pw))]
+        wa, wt, pw, wr2 = _walk(walk)
+        comps = [(tv, accel, math.log1p(-pw), 0.0),
+                 (np.full(tv.shape, float(wt)), np.full(tv.shape, float(wa)), math.log(pw),
+                  wr2)]
     for k in range(1, K):
         live = (k < n)[:, None]
         if not live.any():
@@ -183,12 +194,12 @@ def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
         rk = np.where(known[:, k:k + 1], r[:, k:k + 1], sm2)[..., None]
         zk = z[:, None, k, :]
         out = []
-        for ctv, cacc, logp in comps:
+        for ctv, cacc, logp, extra in comps:
             f, g, qpp, qpv, qvv = (q[..., None] for q in iou_discretisation(dt, ctv, cacc))
             ap = a + 2.0 * f * b + f * f * c + qpp
             bp = g * (b + f * c) + qpv
             cp = g * g * c + qvv
-            S = ap + rk
+            S = ap + rk + extra
             y = zk - (p + f * v)
             nis = y * y / S
             if walk is None:
@@ -396,7 +407,7 @@ def _nelder_mead_fits(t, z, r, n, tv_rw, sm_free, floor2, walk, prev, scout: int
     collar with a previous fit (``prev``) starts from it instead of the grid."""
     from herd_ros.ingest import collar_bank
     N = len(n)
-    wa, wt, pw = walk if walk is not None else (0.0, 1.0, 0.5)
+    wa, wt, pw, wr2 = _walk(walk)
     D0, s20 = moment_start(t, z, r, n, floor2)
     short = np.minimum(n, scout)
     # σ_m is searched only for the collars with fixes of unknown covariance (each collar's
@@ -433,7 +444,7 @@ def _nelder_mead_fits(t, z, r, n, tv_rw, sm_free, floor2, walk, prev, scout: int
             t, z, r, np.ascontiguousarray(n, dtype=np.int64), np.ascontiguousarray(x0),
             np.ascontiguousarray(lo), np.ascontiguousarray(hi),
             np.ascontiguousarray(np.broadcast_to(step, (N, 3)), dtype=float),
-            float(wa), float(wt), float(pw), HUBER_NIS, int(evals), 0.05, x, ll)
+            float(wa), float(wt), float(pw), float(wr2), HUBER_NIS, int(evals), 0.05, x, ll)
         return x, ll
 
     # a warm start (a collar refitted from its last fit) takes smaller first steps; per

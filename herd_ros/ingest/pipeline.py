@@ -45,7 +45,7 @@ from herd_ros.trajectory import HerdTrajectory
 
 log = logging.getLogger(__name__)
 
-SMOOTHERS = ('none', 'rts', 'fir')
+SMOOTHERS = ('none', 'rts', 'lag', 'fir')
 #: the motion-model choices of :func:`trajectory_from_fixes`
 MOTIONS = ('auto', 'fit', 'fixed')
 
@@ -170,19 +170,26 @@ def fixes_enu(fixes: pd.DataFrame, datum) -> tuple[np.ndarray, np.ndarray]:
     return e, n
 
 
-#: the smallest measurement std (m) the motion fit may find for fixes without a covariance
-#: (RTLS/UWB tags are centimetre-precise; the filter's floor guards given covariances)
-FITTED_STD_FLOOR = 0.02
+#: the smallest measurement std (m) the motion fit may find for planar fixes without a
+#: covariance (RTLS/UWB tags are centimetre-precise). GPS fixes keep the filter's
+#: ``position_std_floor``: at 1 Hz a receiver's error wanders slowly, and a fit left free
+#: takes it for motion and trusts every fix to a few centimetres.
+PLANAR_STD_FLOOR = 0.02
 
 
-def refit_config(params: FilterParams, window: int = 200):
+def refit_config(params: FilterParams, window: int = 200, planar: bool = False):
     """The :class:`~herd_ros.ingest.motion_refit.RefitConfig` of a filter whose motion
     model is fitted per collar: ``params``' walk component (its configured model if it has
-    none)."""
+    none); the fitted fix std floored at ``position_std_floor`` (GPS) or
+    :data:`PLANAR_STD_FLOOR` (planar fixes)."""
     from herd_ros.ingest.motion_refit import RefitConfig
     walk = params.walk or (params.accel_std, params.velocity_tau)
-    return RefitConfig(window=window, walk=(walk[0], walk[1], params.walk_probability),
-                       std_floor=FITTED_STD_FLOOR)
+    floor = min(PLANAR_STD_FLOOR, params.position_std_floor) if planar \
+        else params.position_std_floor
+    walk_std = (params.walk_position_std if params.walk_position_std is not None
+                else params.default_position_std)
+    return RefitConfig(window=window, walk=(walk[0], walk[1], params.walk_probability,
+                                            walk_std ** 2), std_floor=floor)
 
 
 #: velocity persistence (s) of the prior random walk of a collar not yet fitted
@@ -193,7 +200,9 @@ def with_walk(params: FilterParams) -> FilterParams:
     """The filter of a collar whose motion is fitted, before its first fit: its configured
     model becomes the walk component, and its own model is the random walk with the walk's
     long-run diffusion (D = σ_a² τ_v², the fixes followed closely, without carrying a
-    velocity across the intervals) until the data say otherwise."""
+    velocity across the intervals) until the data say otherwise; the walk component's fixes
+    count with the configured ``default_position_std`` added (a glitch of a few metres is
+    discounted, not rejected)."""
     if params.walk is not None:
         return params
     import dataclasses
@@ -202,7 +211,8 @@ def with_walk(params: FilterParams) -> FilterParams:
     return dataclasses.replace(params, accel_std=math.sqrt(D) / PRIOR_VELOCITY_TAU,
                                velocity_tau=PRIOR_VELOCITY_TAU,
                                walk_accel_std=params.accel_std,
-                               walk_velocity_tau=params.velocity_tau)
+                               walk_velocity_tau=params.velocity_tau,
+                               walk_position_std=params.default_position_std)
 
 
 def with_motion(params: FilterParams, fit) -> FilterParams:
@@ -388,7 +398,7 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
 def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=None,
                           smoother: str = 'none',
                           *, agents=None, trim: bool = True, progress: bool = False,
-                          fir_taps: int = 30, fir_sigma: float = 6.0,
+                          fir_taps: int = 30, fir_sigma: float = 6.0, lag: int = 3,
                           engine: str = 'bank', motion_model: str = 'auto',
                           **filter_params) -> HerdTrajectory:
     """Filtered, synchronized herd trajectory from a fixes table.
@@ -399,7 +409,9 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
         dt: the herd clock step (s); None = :func:`auto_dt`.
         datum: (lat, lon[, alt]) or None for the first valid fix (ignored for a planar
             table, :func:`planar_fixes`).
-        smoother: ``'none'``, ``'rts'`` or ``'fir'``.
+        smoother: ``'none'``, ``'rts'``, ``'lag'`` (fixed-lag: each tick given the next
+            ``lag`` fixes of its collar, :func:`~herd_ros.ingest.smoothing
+            .fixed_lag_timeline`) or ``'fir'``.
         agents: agent order (default: sorted ids, independent of file or bag order).
         trim: cut the leading and trailing ticks where no agent has an estimate (the clock
             covers the union of the collars' spans; see the module docstring); False keeps
@@ -455,7 +467,7 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     if motion_model == 'auto':
         given = {k for k in ('accel_std', 'velocity_tau') if filter_params.get(k) is not None}
         motion_model = 'fixed' if given else 'fit'
-    refit = refit_config(params) if motion_model == 'fit' else None
+    refit = refit_config(params, planar=is_planar(fixes)) if motion_model == 'fit' else None
     collars, timelines, reasons = run_filters(fixes, datum, params, agents, progress, engine,
                                               refit)
     fits = {a: c.fit for a, c in collars.items()} if refit is not None else None
@@ -478,10 +490,11 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
         last = len(ticks) - 1 - int(np.argmax(ok[::-1]))
         trail = len(ticks) - 1 - last
         traj = _slice(traj, lead, last + 1)
-    if smoother == 'rts':
+    if smoother in ('rts', 'lag'):
         from herd_ros.ingest.smoothing import rts_on_ticks
         for i, a in enumerate(agents):
-            x, P = rts_on_ticks(timelines[a], traj.times)
+            x, P = rts_on_ticks(timelines[a], traj.times,
+                                lag=int(lag) if smoother == 'lag' else None)
             traj.positions[:, i] = x[:, :2]
             traj.meta['velocities'][:, i] = x[:, 2:]
             traj.meta['position_cov'][:, i] = P[:, :2, :2]

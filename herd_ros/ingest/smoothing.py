@@ -12,6 +12,9 @@
 
   (the RTS step with the tick as an extra state; Särkkä, *Bayesian Filtering and Smoothing*,
   2013, §8.2). Ticks after a segment's last fix carry its (smoothed = filtered) prediction.
+* :func:`fixed_lag_timeline` — the fixed-lag smoother: each state given the next ``lag``
+  fixes only (a delay of ``lag`` fixes instead of the whole recording), carried to the
+  ticks the same way.
 * :func:`gaussian_fir` — the paper's causal FIR (Schwager et al. 2007):
   ``y[t] = Σ_{j=0}^{n-1} b_j p[t-j]``, ``b_j ∝ exp(-j²/2σ²)``, Σ b_j = 1, n = 30, σ = 6 steps,
   with :func:`scipy.signal.lfilter`, the history before the first tick held at the first
@@ -85,9 +88,53 @@ def rts_timeline(timeline: StateTimeline) -> tuple[np.ndarray, np.ndarray]:
     return xs, Ps
 
 
-def rts_on_ticks(timeline: StateTimeline, ticks):
+def fixed_lag_timeline(timeline: StateTimeline, lag: int) -> tuple[np.ndarray, np.ndarray]:
+    """Fixed-lag smoothed states at the timeline's own times: state k given the fixes up
+    to k + ``lag`` of its segment (x (K, 4), P (K, 4, 4)) — the RTS recursion run back
+    from k + lag to k (Särkkä 2013, §8.2; Moore 1973, the fixed-lag smoother as a
+    truncated fixed-interval one), vectorised over k::
+
+        x̂_i = x_i + J_i (x̂_{i+1} − F_i x_i),  P̂_i = P_i + J_i (P̂_{i+1} − P⁻_{i+1}) J_iᵀ,
+        J_i = P_i F_iᵀ (P⁻_{i+1})⁻¹
+
+    ``lag`` 0 returns the filtered states; a lag as long as the segment, the RTS smoother's.
+    What the estimator would learn from with a delay of ``lag`` fixes."""
+    lag = int(lag)
+    if lag < 0:
+        raise ValueError(f'lag must be >= 0 fixes, got {lag}')
+    x, P = timeline.x, timeline.P
+    K = len(timeline.t)
+    xs, Ps = x.copy(), P.copy()
+    if K < 2 or lag == 0:
+        return xs, Ps
+    tau = np.diff(timeline.t)
+    F = transition(tau, timeline.velocity_tau)
+    Q = process_noise(tau, timeline.accel_std, timeline.velocity_tau)
+    xp = np.einsum('kij,kj->ki', F, x[:-1])
+    Pp = np.einsum('kij,kjl,kml->kim', F, P[:-1], F) + Q
+    J = np.swapaxes(np.linalg.solve(Pp, np.einsum('kij,klj->kil', F, P[:-1])), -1, -2)
+    seg = timeline.segment
+    # the last state each k may use: k + lag, within k's segment
+    seg_end = np.searchsorted(seg, seg, side='right') - 1 if np.all(np.diff(seg) >= 0) \
+        else np.array([np.flatnonzero(seg == s)[-1] for s in seg])
+    end = np.minimum(np.arange(K) + lag, seg_end)
+    cur_x, cur_P = x[end].copy(), P[end].copy()
+    for s in range(lag - 1, -1, -1):
+        i = np.arange(K) + s
+        on = i < end
+        if not on.any():
+            continue
+        ii = i[on]
+        cur_x[on] = x[ii] + np.einsum('kij,kj->ki', J[ii], cur_x[on] - xp[ii])
+        cur_P[on] = P[ii] + np.einsum('kij,kjl,kml->kim', J[ii], cur_P[on] - Pp[ii], J[ii])
+    return cur_x, cur_P
+
+
+def rts_on_ticks(timeline: StateTimeline, ticks, lag: int | None = None):
     """RTS-smoothed estimates at ``ticks`` (T,): (x (T, 4), P (T, 4, 4)); NaN before the
-    first fix. See the module docstring for the in-between-fix step."""
+    first fix. See the module docstring for the in-between-fix step. ``lag`` (fixes): the
+    fixed-lag smoother instead (:func:`fixed_lag_timeline`), each tick given the fixes up
+    to ``lag`` after it."""
     ticks = np.asarray(ticks, dtype=float)
     T = len(ticks)
     x_out = np.full((T, 4), np.nan)
@@ -95,7 +142,7 @@ def rts_on_ticks(timeline: StateTimeline, ticks):
     K = len(timeline.t)
     if K == 0:
         return x_out, P_out
-    xs, Ps = rts_timeline(timeline)
+    xs, Ps = rts_timeline(timeline) if lag is None else fixed_lag_timeline(timeline, lag)
     k = np.searchsorted(timeline.t, ticks, side='right') - 1
     have = k >= 0
     k = np.where(have, k, 0)
