@@ -269,21 +269,26 @@ def _print_summary(fit, summary, args):
     one = summary['one_step_rms']
     print(f'model: {args.output}  ({fit.model.n_agents} agents, dt {fit.model.dt:g} s, '
           f'{summary["agents"][fit.model.agents[0]]["samples"]} training samples per agent)')
+    raw = one.get('last_raw_fix')
     print(f'one-step RMS (m) on {ev} data: model / constant velocity / stay-put / damping '
-          f'only; whiteness = fraction of lags inside the 90 % band, Ljung-Box Q')
+          f'only' + (' / last raw fix (GPS input: the fix before the tick, no filter)'
+                     if raw else '') + '; whiteness = fraction of lags inside the 90 % '
+          f'band, Ljung-Box Q')
     print(f'{"agent":>12} {"damping":>16} {"model":>8} {"const-v":>8} {"stay":>8} '
-          f'{"damp":>8} {"white v":>8} {"white w":>8} {"LB v":>10} {"LB w":>10}')
+          f'{"damp":>8} ' + (f'{"raw fix":>8} ' if raw else '')
+          + f'{"white v":>8} {"white w":>8} {"LB v":>10} {"LB w":>10}')
     for a in fit.model.agents:
         s = summary['agents'][a]
         wv, wr = s['whiteness_velocity'], s['whiteness_residual']
         print(f'{a:>12} {s["damping"]:8.4f}±{_fmt(s["damping_se"], 4):<7} '
               f'{one["model"][a]:8.3f} {one["constant_velocity"][a]:8.3f} '
               f'{one["stay_put"][a]:8.3f} {one["damping_only"][a]:8.3f} '
-              f'{wv["inside_90"]:8.0%} {wr["inside_90"]:8.0%} '
+              + (f'{raw[a]:8.3f} ' if raw else '')
+              + f'{wv["inside_90"]:8.0%} {wr["inside_90"]:8.0%} '
               f'{wv["ljung_box"]:10.1f} {wr["ljung_box"]:10.1f}')
     print(f'{"herd":>12} {"":16} {one["model"]["herd"]:8.3f} '
           f'{one["constant_velocity"]["herd"]:8.3f} {one["stay_put"]["herd"]:8.3f} '
-          f'{one["damping_only"]["herd"]:8.3f}')
+          f'{one["damping_only"]["herd"]:8.3f}' + (f' {raw["herd"]:8.3f}' if raw else ''))
     _print_statistics(summary['statistics'], fit.model.agents)
     weak = [k for k, c in summary['interaction'].items() if not c['identifiable']]
     if weak:

@@ -77,6 +77,33 @@ def damping_only_rms(train, runs, agents) -> dict:
     return out
 
 
+def last_raw_fix_rms(runs, agents) -> dict | None:
+    """One-step RMS (m) of the last raw fix for GPS input: the prediction of p^{k+1} is the
+    agent's last raw fix at or before tick k (what a user has with no filter), on the
+    samples the other baselines use (p^{k−1}, p^k, p^{k+1} present); None when the runs
+    carry no raw fixes (a trajectory file). {agent: RMS, 'herd': RMS}."""
+    errs = []
+    for r in runs:
+        raw = r.meta.get('raw_fixes')
+        if raw is None or r.n_steps < 3:
+            continue
+        p = aligned_positions(r, agents)
+        e = np.full(p[2:].shape, np.nan)
+        for i, a in enumerate(agents):
+            t, xy = raw.get(a, (np.zeros(0), np.zeros((0, 2))))
+            k = np.searchsorted(t, r.times[1:-1], side='right') - 1
+            have = (k >= 0) & np.isfinite(p[:-2, i, 0]) & np.isfinite(p[1:-1, i, 0])
+            e[have, i] = xy[k[have]] - p[2:][have, i]
+        errs.append(e)
+    if not errs:
+        return None
+    sq = (np.concatenate(errs) ** 2).sum(-1)
+    with np.errstate(invalid='ignore'):
+        out = {ag: float(np.sqrt(np.nanmean(sq[:, i]))) for i, ag in enumerate(agents)}
+        out['herd'] = float(np.sqrt(np.nanmean(sq)))
+    return out
+
+
 def skill_lines(summary: dict) -> list[str]:
     """The skill table that leads a fit or report: herd RMS (m) of the model against
     constant velocity, stay-put and damping only, one step and k steps ahead."""
@@ -119,6 +146,9 @@ def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajector
     summary['one_step_rms'] = one_step_rms(model, evaluate_on)
     summary['one_step_rms']['damping_only'] = damping_only_rms(train, evaluate_on,
                                                                model.agents)
+    raw = last_raw_fix_rms(evaluate_on, model.agents)
+    if raw is not None:
+        summary['one_step_rms']['last_raw_fix'] = raw
     a = damping_only_fit(np.concatenate([aligned_positions(r, model.agents) for r in train]))
     summary['k_step_rms'] = {m: {str(k): v for k, v in d.items()}
                              for m, d in k_step_rms(model, evaluate_on, ks, damping=a).items()}

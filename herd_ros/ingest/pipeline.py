@@ -437,7 +437,7 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
         ``fix_outcomes`` (per row of ``fixes``), ``motion_fits`` ({agent:
         :class:`~herd_ros.ingest.motion_fit.MotionFit`} or None) and ``timelines`` ({agent:
         :class:`~herd_ros.ingest.herd_clock.StateTimeline`}: each collar's causal track,
-        its state after every accepted fix).
+        its state after every accepted fix) and ``raw_fixes`` (:func:`raw_fixes_by_agent`).
     """
     if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise HerdInputError(f'dt must be a positive number of seconds, got {dt!r}')
@@ -505,6 +505,7 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
             raise HerdInputError('the FIR smoother needs every agent at every tick; use '
                                  'trim=True')
         traj.positions = gaussian_fir(traj.positions, fir_taps, fir_sigma)
+    traj.meta['raw_fixes'] = raw_fixes_by_agent(fixes, datum, agents)
     traj.meta.update({'datum': datum, 'dt': float(dt), 'counters': counters,
                       'smoother': smoother,
                       'filter_params': params, 'trimmed': (lead, trail),
@@ -512,6 +513,25 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
                       'timelines': timelines,
                       'fix_outcomes': reasons})
     return traj
+
+
+def raw_fixes_by_agent(fixes: pd.DataFrame, datum, agents) -> dict:
+    """{agent: (t (K,), xy (K, 2))}: each agent's raw position fixes in ENU (status not
+    NO_FIX, finite), in stamp order: what a user without a filter has (the "last raw fix"
+    baseline of the skill tables)."""
+    e, n = fixes_enu(fixes, datum)
+    t = fixes['time'].to_numpy(float)
+    status = fixes['status'].to_numpy(int) if 'status' in fixes else np.zeros(len(t), int)
+    ok = (status != STATUS_NO_FIX) & np.isfinite(t) & np.isfinite(e) & np.isfinite(n)
+    ids, uniques = pd.factorize(fixes['agent'].to_numpy(dtype=object))
+    codes = pd.Index(list(agents)).get_indexer(uniques)[ids] if len(ids) else ids
+    rows = np.flatnonzero(ok & (codes >= 0))
+    rows = rows[np.lexsort((t[rows], codes[rows]))]
+    bounds = np.searchsorted(codes[rows], np.arange(len(agents) + 1))
+    return {a: (t[rows[bounds[i]:bounds[i + 1]]],
+                np.column_stack([e[rows[bounds[i]:bounds[i + 1]]],
+                                 n[rows[bounds[i]:bounds[i + 1]]]]))
+            for i, a in enumerate(agents)}
 
 
 def _slice(traj: HerdTrajectory, start: int, stop: int) -> HerdTrajectory:

@@ -78,18 +78,24 @@ def whole_processes(repeats):
                                        '--dt', '1']
         plain = [sys.executable, str(HERE / 'plain_filterpy_loop.py'), str(src),
                  str(Path(tmp) / 'b.csv')]
+        fixed = ingest + ['--motion-model', 'fixed']
         first = timed(ingest)
         ours = [timed(ingest) for _ in range(repeats)]
+        ours_fixed = [timed(fixed) for _ in range(repeats)]
         base = [timed(plain) for _ in range(repeats)]
         timed(ingest, HERD_ROS_KERNELS='jit')
         jit = [timed(ingest, HERD_ROS_KERNELS='jit') for _ in range(repeats)]
     mo, mb, mj = statistics.median(ours), statistics.median(base), statistics.median(jit)
+    mf = statistics.median(ours_fixed)
     print(f'whole processes on {len(fixes)} fixes (200 collars x 30 min at 1 Hz), median of '
           f'{repeats}:')
     print(f'  herd-ros ingest           {mo:7.2f} s  ({len(fixes) / mo:9.0f} fixes/s; '
           f'kernels: {installed_kernels()}; first run: {first:.2f} s)')
+    print(f'  same, --motion-model fixed {mf:6.2f} s  ({len(fixes) / mf:9.0f} fixes/s: one '
+          f'model for all collars, as the loop)')
     print(f'  plain filterpy loop       {mb:7.2f} s  ({len(fixes) / mb:9.0f} fixes/s)')
-    print(f'  speed-up                  {mb / mo:7.1f} x')
+    print(f'  speed-up                  {mb / mo:7.1f} x (fitted models), {mb / mf:.1f} x '
+          f'(fixed model)')
     print(f'  herd-ros ingest, numba    {mj:7.2f} s  (HERD_ROS_KERNELS=jit: {mb / mj:.1f} x '
           f'the loop)')
 
