@@ -1,9 +1,10 @@
 """Each collar's motion model refitted as its fixes arrive: the same causal schedule live
 and offline.
 
-A collar starts with the configured model (the prior: ``accel_std``, ``velocity_tau``,
-``default_position_std``). Right after its n-th fix (any outcome) for n in
-:func:`refit_due`'s schedule — 10, 20, 40, ..., doubling up to ``max_interval`` fixes
+A collar starts with a prior that follows its fixes (a random walk with the configured
+model's diffusion, :func:`herd_ros.ingest.pipeline.with_walk`). Right after its n-th fix
+(any outcome) for n in :func:`refit_due`'s schedule — 20, 40, 80, ..., doubling up to
+``max_interval`` fixes
 apart, then every ``max_interval`` fixes — its model is refitted by maximum likelihood
 (:func:`herd_ros.ingest.motion_fit.fit_motion`, warm-started from its previous fit) on its
 last ``window`` accepted fixes, and that model filters its next fixes. The fit only ever
