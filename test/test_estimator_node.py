@@ -213,3 +213,37 @@ def test_kill_9_resumes_from_the_checkpoint(ros, herd, console_script, tmp_path)
     with np.load(ckpt) as z:  # written on shutdown; θ continued from where it stopped
         assert z['rls_samples'].min() > checkpointed.min()
         assert np.allclose(z['rls_theta'][:, 0], theta_before[:, 0], atol=0.05)
+
+
+def test_a_replay_started_over_is_a_new_session(ros, herd, console_script, tmp_path):
+    """Issue 26: the same recording twice with the same checkpoint (a second launch on the
+    same bag, a looping replay): the second run's data time is far behind the checkpoint;
+    the estimator sets the checkpoint aside, starts afresh and learns — parameters are
+    published again and the sample counts start over."""
+    node, env = ros
+    truth, run = herd
+    ckpt = tmp_path / 'estimator.ckpt.npz'
+    n = 400
+    proc = start_estimator(console_script, env, tmp_path, run.agents)
+    try:
+        feeder = Feeder(node)
+        feeder.publish(run.times[:n], run.positions[:n])
+        assert feeder.spin(20.0, lambda: min(feeder.samples.get(a, 0) for a in run.agents)
+                           >= 0.9 * n), feeder.samples
+    finally:
+        stop(proc)
+    assert ckpt.is_file()
+    proc = start_estimator(console_script, env, tmp_path, run.agents)
+    try:
+        feeder.params = None
+        feeder.samples.clear()
+        feeder.publish(run.times[:n], run.positions[:n])
+        assert feeder.spin(20.0, lambda: feeder.params is not None), 'no parameters published'
+        assert feeder.spin(20.0, lambda: min(feeder.samples.get(a, 0) for a in run.agents)
+                           >= 0.9 * n), feeder.samples
+        assert max(feeder.samples.values()) <= n           # counted afresh, not continued
+    finally:
+        out, err = stop(proc)
+    assert 'a new session' in err + out, err
+    assert (tmp_path / 'estimator.ckpt.session-1.npz').is_file()    # set aside, not deleted
+    assert 'Traceback' not in err, err

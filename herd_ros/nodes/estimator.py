@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import array
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -74,6 +75,10 @@ DEFAULTS = {
                                  'when it matches; relative to the data directory; empty = '
                                  'none'),
     'checkpoint_period_s': Param(60.0, 's (wall) between checkpoints', range=(1e-3, 1e9)),
+    'new_session_after_s': Param(60.0, 'a snapshot this many s of data time before the latest '
+                                       'one starts a new session (a replay started over): the '
+                                       'checkpoint is set aside, the estimator starts afresh',
+                                 range=(1e-3, 1e12)),
     'diagnostics_period_s': Param(1.0, 's (wall) between /diagnostics and markers',
                                   range=(1e-3, 3600.0)),
     'frame_id': Param('map', 'frame of the predictions and markers'),
@@ -107,7 +112,8 @@ def read_parameters(node: Node) -> dict:
     if len(b) != 4 or not (b[0] < b[1] and b[2] < b[3]):
         raise ParameterError(f'parameter field_bounds must be [xmin, xmax, ymin, ymax] with '
                              f'xmin < xmax and ymin < ymax, got {b}')
-    for name in ('checkpoint_period_s', 'diagnostics_period_s', 'interaction_radius'):
+    for name in ('checkpoint_period_s', 'diagnostics_period_s', 'interaction_radius',
+                 'new_session_after_s'):
         if not values[name] > 0:
             raise ParameterError(f'parameter {name} must be positive, got {values[name]}')
     if values['profile_size'] < 1 or values['min_visits'] < 0:
@@ -136,7 +142,8 @@ class Estimator(Node):
             cfg['agents'], cfg['dt'], cfg['law'], cfg['field_grid'], cfg['field_bounds'],
             cfg['forgetting'], cfg['p0'], cfg['min_visits'], cfg['interaction_radius'],
             cfg['profile_size'], robust=bool(cfg['robust']))
-        self.counts = {'snapshots': 0, 'updates': 0, 'gaps': 0, 'backwards': 0}
+        self.counts = {'snapshots': 0, 'updates': 0, 'gaps': 0, 'backwards': 0,
+                       'sessions': 1}
         self.clock_warning = ''
         self._resume()
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -221,6 +228,9 @@ class Estimator(Node):
         positions = np.array([[p.position.x, p.position.y] for p in msg.poses])
         result = self.core.add_snapshot(t, positions)
         self.counts['snapshots'] += 1
+        if result.status == 'backwards' and -result.step > self.cfg['new_session_after_s']:
+            self._new_session(t, -result.step)
+            result = self.core.add_snapshot(t, positions)
         if result.status == 'backwards':
             self.counts['backwards'] += 1
             self._warn(f'snapshot at {t:.3f} s is not after the previous one: ignored')
@@ -233,6 +243,26 @@ class Estimator(Node):
             self.counts['updates'] += 1
             self.publish_params(msg.header.stamp)
         self.publish_prediction()
+
+    def _new_session(self, t: float, back: float):
+        """Data time went back by ``back`` s (more than ``new_session_after_s``): the same
+        recording replayed again, or another. What was learned belongs to the old session:
+        its checkpoint is set aside (renamed, not deleted) and the estimator starts afresh.
+        A resume after a crash continues the data, so it never lands here."""
+        path = self.cfg['checkpoint_path']
+        aside = ''
+        if path and os.path.isfile(path):
+            root, ext = os.path.splitext(path)
+            k = 1
+            while os.path.exists(f'{root}.session-{k}{ext}'):
+                k += 1
+            aside = f'{root}.session-{k}{ext}'
+            os.replace(path, aside)
+        self.core.reset()
+        self.counts['sessions'] += 1
+        self.get_logger().info(
+            f'data time went back {back:.0f} s (to {t:.3f}): a new session, learning afresh'
+            + (f'; the previous checkpoint is kept as {aside}' if aside else ''))
 
     def _warn(self, text: str):
         self.clock_warning = text
