@@ -262,12 +262,17 @@ def _stats(A_x, A_y, F, y_x, y_y):
 
 
 def _solve(G, c, ridge):
+    """The ridge solution on standardised columns, the damping (column 0) unpenalised
+    (as :func:`~herd_ros.estimation.batch_ls.fit_agent`)."""
     d = np.diag(G).copy()
     scale = np.sqrt(np.where(d > 0, d, 1.0))
     Gs = G / scale[:, None] / scale[None, :]
     cs = c / scale
     if ridge > 0:
-        Gs = Gs + ridge * np.eye(len(Gs))
+        pen = np.full(len(Gs), float(ridge))
+        if d[0] > 0:
+            pen[0] = 0.0
+        Gs = Gs + np.diag(pen)
     theta, *_ = np.linalg.lstsq(Gs, cs, rcond=1e-10)
     return theta / scale
 
