@@ -49,16 +49,10 @@ def last_pose_before(times, positions, stamps):
     return out
 
 
-def next_fix_distances(fixes: pd.DataFrame, track_times, track_positions, agents,
-                       targets=None) -> tuple[np.ndarray, np.ndarray]:
-    """(d_track, d_raw) at each scored fix (see the module docstring).
-
-    Args:
-        fixes: ``time, agent, x, y`` in the track's frame (metres).
-        track_times: (T,) the track's clock; ``track_positions`` (T, N, 2), NaN where the
-            track has no pose; ``agents`` its N agent ids.
-        targets: boolean mask over ``fixes`` rows that may be scored (default all).
-    """
+def _distances(fixes: pd.DataFrame, agents, track_before, targets=None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """(d_track, d_raw) at each scored fix; ``track_before(i, agent, stamps)`` gives agent
+    i's track just before each of its fix stamps ((K, 2), NaN where it has none)."""
     targets = np.ones(len(fixes), dtype=bool) if targets is None else np.asarray(targets)
     out_t, out_r = [], []
     agent_col = fixes['agent'].astype(str).to_numpy()
@@ -73,11 +67,27 @@ def next_fix_distances(fixes: pd.DataFrame, track_times, track_positions, agents
         k = np.searchsorted(t, t, side='left') - 1
         raw = np.full_like(z, np.nan)
         raw[k >= 0] = z[k[k >= 0]]
-        track = last_pose_before(track_times, track_positions[:, i], t)
+        track = track_before(i, a, t)
         ok = tg & np.isfinite(raw).all(axis=1) & np.isfinite(track).all(axis=1)
         out_t.append(np.hypot(*(track[ok] - z[ok]).T))
         out_r.append(np.hypot(*(raw[ok] - z[ok]).T))
+    if not out_t:
+        return np.zeros(0), np.zeros(0)
     return np.concatenate(out_t), np.concatenate(out_r)
+
+
+def next_fix_distances(fixes: pd.DataFrame, track_times, track_positions, agents,
+                       targets=None) -> tuple[np.ndarray, np.ndarray]:
+    """(d_track, d_raw) at each scored fix (see the module docstring).
+
+    Args:
+        fixes: ``time, agent, x, y`` in the track's frame (metres).
+        track_times: (T,) the track's clock; ``track_positions`` (T, N, 2), NaN where the
+            track has no pose; ``agents`` its N agent ids.
+        targets: boolean mask over ``fixes`` rows that may be scored (default all).
+    """
+    return _distances(fixes, agents, lambda i, a, t: last_pose_before(
+        track_times, track_positions[:, i], t), targets)
 
 
 def collar_track_before(timeline, stamps, eps: float = 1e-6):
@@ -94,24 +104,8 @@ def collar_track_distances(fixes: pd.DataFrame, timelines: dict, targets=None
                            ) -> tuple[np.ndarray, np.ndarray]:
     """(d_track, d_raw) as :func:`next_fix_distances`, the track being each collar's
     causal track (:func:`collar_track_before`) rather than the herd clock's poses."""
-    targets = np.ones(len(fixes), dtype=bool) if targets is None else np.asarray(targets)
-    out_t, out_r = [], []
-    agent_col = fixes['agent'].astype(str).to_numpy()
-    for a, timeline in timelines.items():
-        rows = np.flatnonzero(agent_col == str(a))
-        g = fixes.iloc[rows]
-        order = np.argsort(g['time'].to_numpy(float), kind='stable')
-        t = g['time'].to_numpy(float)[order]
-        z = g[['x', 'y']].to_numpy(float)[order]
-        tg = targets[rows][order]
-        k = np.searchsorted(t, t, side='left') - 1
-        raw = np.full_like(z, np.nan)
-        raw[k >= 0] = z[k[k >= 0]]
-        track = collar_track_before(timeline, t)
-        ok = tg & np.isfinite(raw).all(axis=1) & np.isfinite(track).all(axis=1)
-        out_t.append(np.hypot(*(track[ok] - z[ok]).T))
-        out_r.append(np.hypot(*(raw[ok] - z[ok]).T))
-    return np.concatenate(out_t), np.concatenate(out_r)
+    return _distances(fixes, list(timelines),
+                      lambda i, a, t: collar_track_before(timelines[a], t), targets)
 
 
 def tracking_table(fixes: pd.DataFrame, track_times, track_positions, agents,

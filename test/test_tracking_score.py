@@ -1,0 +1,38 @@
+"""The tracking measure of issue 25 (:mod:`herd_ros.ingest.tracking_score`), by hand."""
+import numpy as np
+import pandas as pd
+
+from herd_ros.ingest.herd_clock import StateTimeline
+from herd_ros.ingest.tracking_score import (collar_track_distances, next_fix_distances,
+                                            summarise)
+
+
+def fixes():
+    return pd.DataFrame({'time': [0.0, 10.0, 20.0, 20.0], 'agent': ['a'] * 4,
+                         'x': [0.0, 10.0, 20.0, 21.0], 'y': [0.0, 0.0, 0.0, 0.0]})
+
+
+def test_the_track_and_the_raw_fix_are_scored_by_hand():
+    # the clock's poses at 5 s and 15 s; the fix at 10 s: track (5, 0), raw (0, 0);
+    # at 20 s (twice: a duplicated stamp is not "before" its twin) track (15, 0), raw (10, 0)
+    d_t, d_r = next_fix_distances(fixes(), np.array([5.0, 15.0]),
+                                  np.array([[[5.0, 0.0]], [[15.0, 0.0]]]), ['a'])
+    np.testing.assert_allclose(d_t, [5.0, 5.0, 6.0])
+    np.testing.assert_allclose(d_r, [10.0, 10.0, 11.0])
+    # a mask leaves fixes out of the score, never out of the predecessors
+    d_t, d_r = next_fix_distances(fixes(), np.array([5.0, 15.0]),
+                                  np.array([[[5.0, 0.0]], [[15.0, 0.0]]]), ['a'],
+                                  targets=np.array([True, False, True, True]))
+    np.testing.assert_allclose(d_r, [10.0, 11.0])
+    s = summarise([3.0, 4.0, 200.0])
+    assert s['median'] == 4.0 and abs(s['beyond_100m'] - 1 / 3) < 1e-12
+
+
+def test_a_collar_track_predicts_its_last_state_to_the_fix():
+    # states at 0 s and 10 s moving east at 1 m/s, constant velocity without noise: just
+    # before 20 s the track says (20, 0)
+    x = np.array([[0.0, 0.0, 1.0, 0.0], [10.0, 0.0, 1.0, 0.0]])
+    tl = StateTimeline(np.array([0.0, 10.0]), x, np.zeros((2, 4, 4)), 1e-9, 1e6)
+    d_t, d_r = collar_track_distances(fixes(), {'a': tl})
+    np.testing.assert_allclose(d_t, [0.0, 0.0, 1.0], atol=1e-5)
+    np.testing.assert_allclose(d_r, [10.0, 10.0, 11.0])
