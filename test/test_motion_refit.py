@@ -25,7 +25,7 @@ def test_the_schedule_doubles_then_steps():
 
 def test_a_window_keeps_each_collars_last_accepted_fixes_in_order():
     rng = np.random.default_rng(0)
-    r = MotionRefitter(3, RefitConfig(window=5, fit_fixes=5))
+    r = MotionRefitter(3, RefitConfig(window=5))
     kept = {i: [] for i in range(3)}
     for _ in range(30):
         m = int(rng.integers(1, 40))
@@ -91,8 +91,7 @@ def test_the_refits_do_not_depend_on_the_batching(collared_cows):
     for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(fixes)]):
         sl = slice(a, b)
         batch, _ = process_with_refits(bank, refitter, idx[sl], t[sl], e[sl], n[sl],
-                                       status[sl], ctype[sl], cov[sl], var[sl],
-                                       params.position_std_floor)
+                                       status[sl], ctype[sl], cov[sl], var[sl])
         xs.append(batch.x)
     x = np.concatenate(xs)
     assert refitter.refits >= 3 * 4

@@ -21,11 +21,11 @@ Plain numpy; no ROS.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from herd_ros.ingest.collar_bank import FixBatch
 from herd_ros.ingest.motion_fit import MotionFit, fit_motion
 
 #: first refit (fixes), the schedule doubles from here
@@ -47,15 +47,13 @@ def refit_due(count, first: int = FIRST_REFIT, max_interval: int = 1000) -> np.n
 
 @dataclass
 class RefitConfig:
-    """How :class:`MotionRefitter` refits: the ``window`` of accepted fixes (thinned to
-    ``fit_fixes`` for the fit), the schedule's
+    """How :class:`MotionRefitter` refits: the ``window`` of accepted fixes, the schedule's
     ``first`` refit and ``max_interval`` (fixes), the fewest accepted fixes a fit needs
-    (``min_fixes``), the filter's
-    walk component ``walk`` (σ_a, τ_v, probability) and the smallest std a fit may give the
-    fixes without a covariance, ``std_floor`` (m)."""
+    (``min_fixes``), the filter's walk component ``walk`` (σ_a, τ_v, probability, added
+    variance) and the smallest std a fit may give the fixes without a covariance,
+    ``std_floor`` (m)."""
 
     window: int = 200
-    fit_fixes: int = 200
     first: int = FIRST_REFIT
     min_fixes: int = 16
     max_interval: int = 1000
@@ -122,14 +120,10 @@ class MotionRefitter:
         self.count[u] = np.minimum(self.count[u] + sizes, W)
 
     def window(self, i: int):
-        """Collar ``i``'s window, oldest first, thinned to at most ``fit_fixes`` (every
-        k-th fix, the newest kept: the IOU is exact at any interval, so a thinned window
-        is still a likelihood of the same model, over the same span): (t, z, r)."""
+        """Collar ``i``'s window, oldest first: (t, z, r)."""
         W = self.t.shape[1]
         k = self.count[i]
         idx = (self.head[i] - k + np.arange(k)) % W
-        stride = -(-k // self.config.fit_fixes)
-        idx = idx[::-1][::stride][::-1]
         return self.t[i, idx], self.z[i, idx], self.r[i, idx]
 
     def refit(self, collars) -> dict:
@@ -139,7 +133,7 @@ class MotionRefitter:
         if not collars:
             return {}
         fits = fit_motion([self.window(i) for i in collars],
-                          min_fixes=self.config.min_fixes, max_fixes=self.config.fit_fixes,
+                          min_fixes=self.config.min_fixes, max_fixes=self.config.window,
                           position_std_floor=self.config.std_floor, walk=self.config.walk,
                           start=[self.fits[i] for i in collars])
         out = {}
@@ -163,14 +157,14 @@ def fix_variance(cov_type, cov_ee, cov_nn, floor: float) -> np.ndarray:
     return np.where(known, v, np.nan)
 
 
-def apply_fit(bank, i: int, fit: MotionFit, floor: float):
-    """Collar ``i`` of ``bank`` moves by ``fit`` from its next fix on (its fixed std too,
-    if fitted; the floor of given covariances drops to it)."""
-    if math.isfinite(fit.position_std):
-        bank.set_motion(i, fit.accel_std, fit.velocity_tau, fit.position_std,
-                        min(fit.position_std, floor))
-    else:
-        bank.set_motion(i, fit.accel_std, fit.velocity_tau)
+def apply_fit(bank, i: int, fit: MotionFit):
+    """Collar ``i`` of ``bank`` moves by ``fit`` from its next fix on: the filter
+    parameters of :func:`herd_ros.ingest.pipeline.with_motion` (the reference filter's),
+    its fix std and floor included."""
+    from herd_ros.ingest.pipeline import with_motion
+    p = with_motion(bank.params, fit)
+    bank.set_motion(i, p.accel_std, p.velocity_tau, p.default_position_std,
+                    p.position_std_floor)
 
 
 def split_points(collar, due) -> list[int]:
@@ -199,14 +193,13 @@ def split_points(collar, due) -> list[int]:
 
 
 def process_with_refits(bank, refitter: MotionRefitter, collar, stamp, east, north,
-                        status, cov_type, cov9, var, floor: float):
+                        status, cov_type, cov9, var):
     """:meth:`CollarBank.process` of a batch with the refits it contains (module
     docstring): returns (FixBatch, motion (M, 2)) — ``motion`` the model (σ_a, τ_v) each
     fix's collar had when the fix was processed (what carries its state forward).
     ``cov_type``, ``cov9``: the fixes' NavSatFix covariances (their R is formed part by
     part: a refit changes the std of its collar's fixes without one); ``var``: the fixes'
-    variances for the fit (:func:`fix_variance`); ``floor``: the filter's std floor."""
-    from herd_ros.ingest.collar_bank import FixBatch
+    variances for the fit (:func:`fix_variance`)."""
     collar = np.ascontiguousarray(collar, dtype=np.int64)
     m = len(collar)
     out = FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
@@ -228,6 +221,6 @@ def process_with_refits(bank, refitter: MotionRefitter, collar, stamp, east, nor
         bank.process(c, stamp[sl], east[sl], north[sl], status[sl], R, out=part)
         refitter.observe(c, stamp[sl], east[sl], north[sl], var[sl], part.accepted)
         for i, fit in refitter.refit(np.unique(c[due[sl]])).items():
-            apply_fit(bank, i, fit, floor)
+            apply_fit(bank, i, fit)
         start = stop
     return out, motion

@@ -250,7 +250,7 @@ class CollarSummary:
 
 
 def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
-                progress: bool = False, engine: str = 'bank', refit=None):
+                progress: bool = False, engine: str = 'bank', refit=None, enu=None):
     """Run every agent's collar filter over its fixes in stamp order (``datum`` None for a
     planar table).
 
@@ -261,7 +261,8 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
     ``refit`` (a :class:`~herd_ros.ingest.motion_refit.RefitConfig`, or None): each
     collar's motion model is refitted as its fixes arrive, on the causal schedule of
     :mod:`~herd_ros.ingest.motion_refit` (the node's), ``params``' model its prior and
-    walk component.
+    walk component. ``enu``: the rows' (east, north) if already computed
+    (:func:`fixes_enu`).
 
     Returns:
         (collars, timelines, reasons): dicts keyed by agent (:class:`CollarSummary`,
@@ -271,7 +272,7 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
     """
     if engine not in ENGINES:
         raise HerdInputError(f'engine must be one of {", ".join(ENGINES)}, got {engine!r}')
-    e, n = fixes_enu(fixes, datum)
+    e, n = fixes_enu(fixes, datum) if enu is None else enu
     t = fixes['time'].to_numpy(float)
     status = fixes['status'].to_numpy(int)
     cov_type = fixes['position_covariance_type'].to_numpy(int)
@@ -352,8 +353,7 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
         var = fix_variance(cov_type, cov[:, 0], cov[:, 4], params.position_std_floor)
         r = rows[order]
         part, mo = process_with_refits(bank, refitter, codes[r], t[r], e[r], n[r],
-                                       status[r], cov_type[r], cov[r], var[r],
-                                       params.position_std_floor)
+                                       status[r], cov_type[r], cov[r], var[r])
         for name in ('outcome', 'mahalanobis2', 'x', 'P', 'segment'):
             getattr(out, name)[order] = getattr(part, name)
         motion[order] = mo
@@ -468,8 +468,9 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
         given = {k for k in ('accel_std', 'velocity_tau') if filter_params.get(k) is not None}
         motion_model = 'fixed' if given else 'fit'
     refit = refit_config(params, planar=is_planar(fixes)) if motion_model == 'fit' else None
+    enu = fixes_enu(fixes, datum)
     collars, timelines, reasons = run_filters(fixes, datum, params, agents, progress, engine,
-                                              refit)
+                                              refit, enu)
     fits = {a: c.fit for a, c in collars.items()} if refit is not None else None
     agents = list(collars)
     counters = {a: dict(collars[a].counters) for a in agents}
@@ -505,7 +506,7 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
             raise HerdInputError('the FIR smoother needs every agent at every tick; use '
                                  'trim=True')
         traj.positions = gaussian_fir(traj.positions, fir_taps, fir_sigma)
-    traj.meta['raw_fixes'] = raw_fixes_by_agent(fixes, datum, agents)
+    traj.meta['raw_fixes'] = raw_fixes_by_agent(fixes, datum, agents, enu)
     traj.meta.update({'datum': datum, 'dt': float(dt), 'counters': counters,
                       'smoother': smoother,
                       'filter_params': params, 'trimmed': (lead, trail),
@@ -515,11 +516,11 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     return traj
 
 
-def raw_fixes_by_agent(fixes: pd.DataFrame, datum, agents) -> dict:
+def raw_fixes_by_agent(fixes: pd.DataFrame, datum, agents, enu=None) -> dict:
     """{agent: (t (K,), xy (K, 2))}: each agent's raw position fixes in ENU (status not
     NO_FIX, finite), in stamp order: what a user without a filter has (the "last raw fix"
-    baseline of the skill tables)."""
-    e, n = fixes_enu(fixes, datum)
+    baseline of the skill tables); ``enu`` the rows' (east, north) if already computed."""
+    e, n = fixes_enu(fixes, datum) if enu is None else enu
     t = fixes['time'].to_numpy(float)
     status = fixes['status'].to_numpy(int) if 'status' in fixes else np.zeros(len(t), int)
     ok = (status != STATUS_NO_FIX) & np.isfinite(t) & np.isfinite(e) & np.isfinite(n)

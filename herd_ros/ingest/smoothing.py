@@ -115,8 +115,7 @@ def fixed_lag_timeline(timeline: StateTimeline, lag: int) -> tuple[np.ndarray, n
     J = np.swapaxes(np.linalg.solve(Pp, np.einsum('kij,klj->kil', F, P[:-1])), -1, -2)
     seg = timeline.segment
     # the last state each k may use: k + lag, within k's segment
-    seg_end = np.searchsorted(seg, seg, side='right') - 1 if np.all(np.diff(seg) >= 0) \
-        else np.array([np.flatnonzero(seg == s)[-1] for s in seg])
+    seg_end = np.searchsorted(seg, seg, side='right') - 1    # segments never decrease
     end = np.minimum(np.arange(K) + lag, seg_end)
     cur_x, cur_P = x[end].copy(), P[end].copy()
     for s in range(lag - 1, -1, -1):

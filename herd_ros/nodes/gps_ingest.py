@@ -473,11 +473,10 @@ class GpsIngest(Node):
                                                                         fixes.cov, idx))
             motion = None
         else:
-            floor = self.cfg.filter_params.position_std_floor
-            var = fix_variance(fixes.cov_type, fixes.cov[:, 0], fixes.cov[:, 4], floor)
+            var = fix_variance(fixes.cov_type, fixes.cov[:, 0], fixes.cov[:, 4],
+                               self.cfg.filter_params.position_std_floor)
             batch, motion = process_with_refits(self.bank, self.refitter, idx, stamp, e, n,
-                                                fixes.status, fixes.cov_type, fixes.cov, var,
-                                                floor)
+                                                fixes.status, fixes.cov_type, fixes.cov, var)
         accepted = batch.accepted
         frame = self.cfg.frame_id
         done = np.flatnonzero(accepted)
