@@ -45,6 +45,7 @@ VERBS = {
     'flock': 'flock',
     'demo': 'demo',
     'herd-file': 'herd_file',
+    'params': 'params',
 }
 
 

@@ -37,60 +37,12 @@ from herd_ros.model.model_file import check_agent_id
 from herd_ros.model.rbf_field import FieldGrid
 from herd_ros.nodes.flocking_mode import FlockingPolicy
 from herd_ros.nodes.imitation_mode import ImitationPolicyMode
-from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
+from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, ParameterError,
                                        declare_parameters, describe_remaining_parameters,
                                        diagnostic_array, diagnostic_status, exit_process,
                                        number_problem, run_node)
+from herd_ros.params.controller import COMMON as DEFAULTS, HERD_MODEL as HERD_MODEL_DEFAULTS
 
-DEFAULTS = {
-    'robots': Param(['robot_1', 'robot_2', 'robot_3'], 'robots this controller commands '
-                                                       '(names as in fleet_sim)'),
-    'other_robots': Param([], 'robots only watched (neighbours, '
-                                                       'never commanded)'),
-    'mode': Param('herd_model', 'control mode', choices=('herd_model', 'flocking',
-                                                         'imitation')),
-    'rate_hz': Param(10.0, 'command rate (Hz, node clock)', range=(1e-6, 1000.0), live=True),
-    'max_speed': Param(1.0, 'speed limit (m/s) of every command', range=(1e-6, 100.0),
-                       live=True),
-    'kinematics': Param('holonomic', 'robot kinematics (as in fleet_sim)',
-                        choices=('holonomic', 'unicycle')),
-    'heading_gain': Param(2.0, 'unicycle: yaw rate per rad of heading error (1/s)',
-                          range=(1e-6, 1000.0)),
-    'max_yaw_rate': Param(2.0, 'unicycle: yaw-rate limit (rad/s)', range=(1e-6, 1000.0)),
-    'fence': Param([], 'fence polygon x1, y1, x2, y2, ... (m, map); '
-                                                'no command crosses it'),
-    'fence_margin': Param(0.5, 'robots stop this far (m) short of the fence',
-                          range=(0.0, 1e6), live=True),
-    'safety_horizon_s': Param(1.0, 'horizon (s) over which a command is checked against fence '
-                                   'and obstacles', range=(1e-6, 1e6)),
-    'obstacles': Param([], 'circular obstacles x, y, r (m) no '
-                                                    'command may enter'),
-    'odom_timeout_s': Param(0.5, 'a robot with older odometry (s) gets a zero command',
-                            range=(1e-6, 1e6), live=True),
-    'diagnostics_period_s': Param(1.0, 'period (s) of /diagnostics', range=(1e-3, 3600.0)),
-}
-
-HERD_MODEL_DEFAULTS = {
-    'assignment': Param([], 'the animal each robot imitates; empty = '
-                                                     'robot k takes agent k mod N'),
-    'other_assignment': Param([], 'the animal of each other_robot'),
-    'noise': Param(False, 'draw the law\'s noise w ~ N(0, Q) of the assigned animal'),
-    'seed': Param(0, 'seed of the noise generator', range=(0, 2 ** 31 - 1)),
-    'model_source': Param('file', 'model.* parameters of a model file, or live from '
-                                  '/herd/model/params', choices=('file', 'topic')),
-    'agents': Param([], 'topic: the estimator\'s agents, in order'),
-    'dt': Param(1.0, 'topic: the estimator\'s clock step (s)', range=(1e-6, 1e9)),
-    'field_grid': Param([6, 6], 'topic: the estimator\'s field grid [nx, ny]'),
-    'field_bounds': Param([-150.0, 150.0, -150.0, 150.0], 'topic: the estimator\'s field '
-                                                          'bounds [xmin, xmax, ymin, ymax]'),
-    'model_min_updates': Param(0, 'topic: ignore the first N model updates',
-                               range=(0, 10 ** 9)),
-    'law': Param('pairwise', 'topic: the estimator\'s law', choices=('pairwise', 'shared')),
-    'interaction_radius': Param(60.0, 'topic, shared law: the estimator\'s radius (m)',
-                                range=(1e-6, 1e9)),
-    'profile_size': Param(6, 'topic, shared law: the estimator\'s profile size',
-                          range=(1, 1000)),
-}
 
 #: The controller's rule for a learned damping a (see :func:`damping_check`).
 DAMPING_RULE = ('|a| >= 1 is refused: the law is unstable (speeds grow without bound); '

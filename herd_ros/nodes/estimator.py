@@ -40,49 +40,13 @@ from visualization_msgs.msg import Marker, MarkerArray
 from diagnostic_msgs.msg import DiagnosticArray
 from herd_ros.errors import HerdInputError
 from herd_ros.estimation.online_fit import LAWS, OnlineHerdEstimator
-from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
+from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, ParameterError,
                                        data_path, declare_parameters,
                                        describe_remaining_parameters, diagnostic_array,
                                        diagnostic_status, exit_process, run_node, seconds_to_stamp,
                                        wall_timer,
                                        stamp_to_seconds)
-
-DEFAULTS = {
-    'agents': Param([], 'agent ids in the order of the poses in '
-                    '/herd/poses (required)'),
-    'dt': Param(0.0, 'herd clock step (s); snapshots further apart are not paired '
-                     '(required, > 0)'),
-    'law': Param('pairwise', 'interaction law: pairwise (the paper) or shared (one distance '
-                             'profile, neighbours within interaction_radius)', choices=LAWS),
-    'forgetting': Param(1.0, 'RLS forgetting factor λ in (0, 1]; 1 = never forget',
-                        range=(0.0, 1.0), live=True),
-    'p0': Param(1.0e6, 'initial covariance P0 = p0·I (units of the noise variance)',
-                range=(1e-12, 1e300)),
-    'field_grid': Param([6, 6], 'RBF field grid [nx, ny] over field_bounds'),
-    'field_bounds': Param([-75.0, 75.0, -75.0, 75.0], 'field bounds [xmin, xmax, ymin, ymax] '
-                                                      '(m, frame_id)'),
-    'min_visits': Param(10, 'samples an agent needs in a cell for its centre to be kept in the '
-                            'saved model', range=(0, 1000000)),
-    'interaction_radius': Param(60.0, 'shared law: neighbours within this distance (m) '
-                                      'interact', range=(1e-6, 1e9)),
-    'profile_size': Param(6, 'shared law: radial basis terms of the distance profile',
-                          range=(1, 1000)),
-    'robust': Param(False, 'outlier-robust updates (Chang 2014): an innovation beyond '
-                           'χ²₂(0.95) gets its noise inflated', live=True),
-    'model_out': Param('herd_model.yaml', 'model file written by ~/save_model and at stop; '
-                                          'relative to the data directory', live=True),
-    'checkpoint_path': Param('', 'checkpoint (.npz) of the whole estimator, resumed at start '
-                                 'when it matches; relative to the data directory; empty = '
-                                 'none'),
-    'checkpoint_period_s': Param(60.0, 's (wall) between checkpoints', range=(1e-3, 1e9)),
-    'new_session_after_s': Param(60.0, 'a snapshot this many s of data time before the latest '
-                                       'one starts a new session (a replay started over): the '
-                                       'checkpoint is set aside, the estimator starts afresh',
-                                 range=(1e-3, 1e12)),
-    'diagnostics_period_s': Param(1.0, 's (wall) between /diagnostics and markers',
-                                  range=(1e-3, 3600.0)),
-    'frame_id': Param('map', 'frame of the predictions and markers'),
-}
+from herd_ros.params.estimator import PARAMS as DEFAULTS
 
 
 def read_parameters(node: Node) -> dict:

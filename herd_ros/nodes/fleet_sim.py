@@ -28,36 +28,11 @@ from herd_ros.control.safety import Fence, Obstacles
 from herd_ros.errors import HerdInputError
 from herd_ros.ingest.geodesy import enu_to_geodetic
 from herd_ros.model.model_file import check_agent_id
-from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
+from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, ParameterError,
                                        declare_parameters, describe_remaining_parameters,
                                        diagnostic_array, diagnostic_status, exit_process,
                                        number_problem, run_node)
-
-DEFAULTS = {
-    'robots': Param(['robot_1', 'robot_2', 'robot_3'], 'robot names, in the order of '
-                                                       '/fleet/poses'),
-    'kinematics': Param('holonomic', 'holonomic (linear.x/y, angular.z) or unicycle '
-                                     '(linear.x, angular.z)', choices=('holonomic', 'unicycle')),
-    'rate_hz': Param(20.0, 'simulation step rate (Hz, node clock)', range=(1e-6, 1000.0)),
-    'initial_poses': Param([], 'initial x, y, yaw per robot (m, m, rad), flattened; empty = '
-                               'on the x axis 2 m apart'),
-    'max_speed': Param(1.0, 'speed limit (m/s)', range=(0.0, 100.0), live=True),
-    'max_accel': Param(2.0, 'acceleration limit (m/s²)', range=(1e-6, 1000.0), live=True),
-    'max_yaw_rate': Param(2.0, 'yaw-rate limit (rad/s)', range=(1e-6, 1000.0), live=True),
-    'cmd_timeout_s': Param(1.0, 'a robot whose last command is older (s) is stopped',
-                           range=(1e-6, 1e6), live=True),
-    'obstacles': Param([], 'circular obstacles x, y, r (m), flattened (collisions counted)'),
-    'fence': Param([], 'fence polygon x1, y1, x2, y2, ... (m, map): a wall'),
-    'robot_radius': Param(0.3, 'radius (m) of each robot for collision counting',
-                          range=(0.0, 100.0)),
-    'datum': Param([27.0153, -108.7937, 0.0], 'datum [lat, lon, alt] of the map frame for '
-                                              'the simulated GPS'),
-    'frame_id': Param('map', 'frame of odometry and /fleet/poses'),
-    'gps_noise_std': Param(0.0, 'std (m) of the simulated GPS noise', range=(0.0, 1e4)),
-    'fix_rate_hz': Param(1.0, 'rate (Hz) of the simulated fixes', range=(1e-6, 1000.0)),
-    'seed': Param(0, 'seed of the GPS noise generator', range=(0, 2 ** 31 - 1)),
-    'diagnostics_period_s': Param(1.0, 'period (s) of /diagnostics', range=(1e-3, 3600.0)),
-}
+from herd_ros.params.fleet_sim import PARAMS as DEFAULTS
 
 
 #: Periods of a clock jump fleet_sim integrates through; a longer jump restarts its grid.

@@ -18,19 +18,10 @@ from herd_ros.control.flocking_command import (TargetEstimate, centroid_of_valid
                                                flocking_velocity_command)
 from herd_ros.errors import HerdInputError
 from herd_ros.flocking.olfati_saber import CircularObstacles, FlockingParams
-from herd_ros.nodes.ros_common import Param, declare_parameters
+from herd_ros.nodes.ros_common import declare_parameters
 from herd_ros.nodes.ros_common import ParameterError, stamp_to_seconds
+from herd_ros.params.controller import FLOCKING as FLOCKING_DEFAULTS
 
-FLOCKING_DEFAULTS = {
-    'target_source': Param('herd_centroid', 'where the target comes from: the centroid of '
-                                            '/herd/poses or a PointStamped topic',
-                           choices=('herd_centroid', 'point')),
-    'target_topic': Param('', 'topic of the target; empty = /herd/poses for herd_centroid'),
-    'target_timeout_s': Param(2.0, 'a target silent this long (s) is held still',
-                              range=(1e-6, 1e6)),
-    'integration_step_s': Param(0.01, 'largest integration substep (s) of the flocking law',
-                                range=(1e-6, 1.0)),
-}
 TARGET_SOURCES = {'herd_centroid': '/herd/poses', 'point': ''}
 
 

@@ -81,11 +81,12 @@ from herd_ros.ingest.pipeline import choose_datum, refit_config, with_walk
 from herd_ros.io.cdr import (NavSatFixes, OdometryEncoder, concat_fixes, decode_navsatfixes,
                              encode_pose_array, no_fixes, take_fixes)
 from herd_ros.model.model_file import check_agent_id
-from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, Param, ParameterError,
+from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, ParameterError,
                                        declare_parameters, describe_remaining_parameters,
                                        diagnostic_array, diagnostic_status, exit_process,
                                        number_problem, refresh_status, run_node,
                                        wall_timer)
+from herd_ros.params.gps_ingest import PARAMS as DEFAULTS
 
 #: Variance (m², rad², ...) of the Odometry entries a GPS collar does not observe.
 UNOBSERVED_VARIANCE = 1e6
@@ -96,78 +97,12 @@ ODOM_DEPTH = 10
 EXECUTORS = ('events', 'single_threaded')
 MOTION_MODELS = ('fit', 'fixed')
 
-DEFAULTS = {
-    'agents': Param([], 'collar ids in the order of /herd/poses; '
-                    'each subscribes /herd/<id>/fix and publishes /herd/<id>/odom (required)'),
-    'datum': Param([], 'ENU origin [lat, lon] or [lat, lon, alt] (deg, deg, m); empty = the '
-                       'earliest valid fix'),
-    'dt': Param(1.0, 'herd clock step (s of data time) of /herd/poses', range=(1e-3, 1e6)),
-    'default_position_std': Param(5.0, 'horizontal std (m) of a fix whose covariance is '
-                                       'UNKNOWN', range=(1e-3, 1e4)),
-    'position_std_floor': Param(0.5, 'smallest fix std (m) ever trusted', range=(0.0, 1e4)),
-    'motion_model': Param('fit', 'fit: each collar\'s motion model (an integrated '
-                                 'Ornstein-Uhlenbeck velocity) and fix std refitted by maximum '
-                                 'likelihood as its fixes arrive, the model of accel_std and '
-                                 'velocity_tau its prior and walk component; fixed: that model '
-                                 'for every collar', choices=MOTION_MODELS),
-    'motion_window': Param(200, 'accepted fixes per collar its motion model is fitted on',
-                           range=(20, 100000)),
-    'walk_probability': Param(0.05, 'prior probability per fix that a fitted collar walks '
-                                    '(moves by the broad model of accel_std and velocity_tau)',
-                              range=(1e-6, 0.999999)),
-    'accel_std': Param(0.05, 'std of the white-noise acceleration (m/s²) of the motion model '
-                             '(with motion_model fit: of the walk component and the prior)',
-                       range=(0.0, 100.0), live=True),
-    'velocity_tau': Param(120.0, 'velocity correlation time (s) of the motion model; 0 = '
-                                 'constant velocity', range=(0.0, 1e6)),
-    'gate_probability': Param(0.999, 'probability inside the Mahalanobis gate (χ², 2 dof)',
-                              range=(0.5, 1.0)),
-    'max_speed': Param(3.0, 'fastest speed (m/s) an animal keeps up for sprint_s: the reach '
-                            'beyond which a fix is an outlier', range=(0.0, 1000.0), live=True),
-    'cruise_speed': Param(1.0, 'fastest speed (m/s) kept up for minutes (reach after '
-                               'sprint_s)', range=(0.0, 1000.0), live=True),
-    'sprint_s': Param(60.0, 'how long (s) max_speed lasts in the reach envelope',
-                      range=(0.0, 1e6), live=True),
-    'stale_after': Param(30.0, 's of data time without an accepted fix after which a collar '
-                               'is stale (NaN in /herd/poses)', range=(1e-3, 1e9)),
-    'initial_velocity_std': Param(0.0, 'velocity std (m/s) when a filter (re)starts; 0 = '
-                                       'max_speed', range=(0.0, 1000.0)),
-    'confirm_fixes': Param(2, 'consistent fixes that replace a track whose animal walked off',
-                           range=(1, 1000)),
-    'reacquire_fixes': Param(12, 'consistent fixes that replace a track from beyond reach '
-                                 '(outlier bursts never reach it)', range=(1, 10000)),
-    'confirm_fixes_lost': Param(2, 'consistent fixes that start a new track', range=(1, 1000)),
-    'reinit_after_gap': Param(300.0, 'a silence longer than this (s) restarts the track',
-                              range=(0.0, 1e9)),
-    'frame_id': Param('map', 'frame of /herd/<agent>/odom and /herd/poses'),
-    'diagnostics_period_s': Param(1.0, 'period (s, wall time) of /diagnostics',
-                                  range=(1e-3, 3600.0)),
-    'max_stamp_ahead_s': Param(600.0, 'a fix stamped more than this (s) ahead of the wall '
-                                      'clock is rejected', range=(1e-3, 1e12)),
-    'max_clock_jump_s': Param(3600.0, 'a forward jump of data time larger than this (s) '
-                                      'restarts the herd clock', range=(1e-3, 1e12)),
-    'batch_period_s': Param(0.005, 'fixes are filtered in batches every this many s (wall '
-                                   'time); 0 = each fix as it arrives', range=(0.0, 1.0)),
-    'diagnostics_max_collars': Param(1000, 'collar statuses per diagnostics period; more '
-                                           'collars are reported in turn', range=(1, 10**7)),
-    'executor': Param('events', 'rclpy executor', choices=EXECUTORS),
-    'fix_queue_depth': Param(50, 'history depth of each /herd/<agent>/fix subscription '
-                                 '(of fix_topic: this times the collars)',
-                             range=(1, 100000)),
-    'fix_topic': Param('', 'one NavSatFix topic for every collar, the collar named by '
-                           'header.frame_id (<agent>, <agent>_gps or <agent>/gps); empty = '
-                           '/herd/<agent>/fix per collar'),
-    'odom_topic': Param('', 'one Odometry topic for every collar (child_frame_id = the '
-                            'collar); empty = /herd/<agent>/odom per collar'),
-}
 
 #: The node parameters that are :class:`FilterParams` fields (same names).
 FILTER_FIELDS = ('accel_std', 'velocity_tau', 'default_position_std', 'position_std_floor',
                  'gate_probability', 'max_speed', 'cruise_speed', 'sprint_s', 'stale_after',
                  'initial_velocity_std', 'confirm_fixes', 'reacquire_fixes',
                  'confirm_fixes_lost', 'reinit_after_gap', 'walk_probability')
-
-
 
 
 class GpsIngestConfig:

@@ -29,32 +29,15 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from herd_ros.errors import HerdInputError
 from herd_ros.io.bags import BagWriter
-from herd_ros.nodes.ros_common import (Param, ParameterError, declare_parameters,
+from herd_ros.nodes.ros_common import (ParameterError, declare_parameters,
                                        describe_remaining_parameters, exit_process, run_node,
                                        wall_timer)
-
-DEFAULTS = {
-    'bag': Param('', 'output bag directory (must not exist); empty = rosbag2_<date-time> in '
-                     'the working directory, as ros2 bag record names it'),
-    'topics': Param([], 'topics to record (absolute names; '
-                                                 'required)'),
-    'storage': Param('mcap', 'mcap (crash-safe) or sqlite3', choices=('mcap', 'sqlite3')),
-    'flush_period_s': Param(0.5, 'mcap: s between flushes (a kill -9 loses at most this)',
-                            range=(1e-3, 1e6)),
-    'flush_messages': Param(1000, 'mcap: messages between flushes', range=(1, 10 ** 9)),
-    'discovery_period_s': Param(0.2, 's between checks for publishers of topics not yet '
-                                     'subscribed', range=(1e-3, 1e6)),
-    'qos_depth': Param(1000, 'subscription queue depth', range=(1, 10 ** 7)),
-    'progress_period_s': Param(10.0, 's (wall) between message counts in the log',
-                               range=(1e-3, 1e6)),
-}
+from herd_ros.params.record import PARAMS as DEFAULTS
 
 
 def default_bag_name(now: float | None = None) -> str:
     """``rosbag2_YYYY_MM_DD-HH_MM_SS`` (local time), as ``ros2 bag record`` names bags."""
     return time.strftime('rosbag2_%Y_%m_%d-%H_%M_%S', time.localtime(now))
-
-
 
 
 def bag_qos(profile: QoSProfile):

@@ -35,32 +35,10 @@ from rosgraph_msgs.msg import Clock
 
 from herd_ros.errors import HerdInputError
 from herd_ros.io.bags import bag_info, read_raw_messages
-from herd_ros.nodes.ros_common import (LiveParameters, Param, ParameterError, declare_parameters,
+from herd_ros.nodes.ros_common import (LiveParameters, ParameterError, declare_parameters,
                                        describe_remaining_parameters, exit_process,
                                        number_problem, run_node, seconds_to_stamp)
-
-DEFAULTS = {
-    'bag': Param('', 'rosbag2 directory (metadata.yaml) or bare .mcap file to play (required)'),
-    'rate': Param(1.0, 'playback speed-up: bag gaps are divided by rate',
-                  range=(1e-6, 1e6), live=True),
-    'loop': Param(False, 'start again from start_offset at the end of the bag'),
-    'start_offset': Param(0.0, 'skip the first start_offset s of the bag', range=(0.0, 1e12)),
-    'topics': Param([], 'topics to play; empty = every topic'),
-    'remap': Param([], "rename topics on output, 'old:=new'"),
-    'publish_clock': Param(True, 'publish the bag time on /clock'),
-    'clock_rate_hz': Param(100.0, '/clock messages per second of wall time between messages',
-                           range=(1e-3, 10000.0)),
-    'qos_from_bag': Param(True, 'offer the QoS recorded in the bag'),
-    'default_qos': Param('reliable', 'QoS of topics without a recorded profile',
-                         choices=('reliable', 'sensor_data')),
-    'default_qos_depth': Param(100, 'history depth of reliable topics without a profile',
-                               range=(1, 1000000)),
-    'wait_for_subscribers': Param(0, 'before playing, wait for this many subscribers on '
-                                     'every topic (0 = start at once)', range=(0, 1000)),
-    'progress_period_s': Param(5.0, 'period (s, wall) of the progress line',
-                               range=(1e-3, 1e6), live=True),
-    'exit_when_done': Param(True, 'end the process (status 0) at the end of the bag'),
-}
+from herd_ros.params.replay import PARAMS as DEFAULTS
 
 
 def message_class(msgtype: str):
@@ -105,8 +83,6 @@ def qos_profile(recorded, default: str, depth: int) -> QoSProfile:
         return qos_profile_sensor_data
     return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
-
-
 
 
 class ReplayConfig:

@@ -10,7 +10,6 @@ import os
 import signal
 import sys
 import threading
-from dataclasses import dataclass
 from pathlib import Path
 
 import rclpy
@@ -21,6 +20,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from herd_ros import process_exit
+from herd_ros.params import Param, problem
 
 #: the nodes end their process with it (:func:`herd_ros.process_exit.exit_process`)
 exit_process = process_exit.exit_process
@@ -31,26 +31,6 @@ OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, Diagnostic
 
 class ParameterError(ValueError):
     """A parameter value a node cannot run with; the message names the parameter."""
-
-
-@dataclass(frozen=True)
-class Param:
-    """One node parameter: its default, what it means, and whether it may change live.
-
-    ``default`` is a value, declared with dynamic typing (so ``1`` is accepted for ``1.0``;
-    the node validates types itself; an empty list default keeps ``ros2 param get`` working,
-    where a typed array without a default answers nothing). ``range`` (lo, hi) and ``choices``
-    are shown by ``ros2 param describe`` (the node's own checks are the authority: an open
-    bound such as forgetting in (0, 1] is checked there). A parameter that is not ``live``
-    is read-only: it is read once at start, so ``ros2 param set`` is refused rather than
-    answered "successful" and ignored.
-    """
-
-    default: object
-    description: str
-    range: tuple | None = None
-    choices: tuple | None = None
-    live: bool = False
 
 
 READ_ONLY_NOTE = ' (read-only: set at start, e.g. with --params-file)'
@@ -77,8 +57,9 @@ def parameter_descriptor(name: str, spec: Param) -> ParameterDescriptor:
 def declare_parameters(node, specs: dict) -> dict:
     """Declare every parameter of ``specs`` ({name: :class:`Param`}) and return {name: value}.
 
-    Each gets its :func:`parameter_descriptor`. A value from a parameters file outside the
-    declared range is a :class:`ParameterError` naming the parameter (one line at start).
+    Each gets its :func:`parameter_descriptor`. A value from a parameters file of the wrong
+    type, outside the range or not one of the choices of its :class:`Param` is a
+    :class:`ParameterError` naming the parameter (one line at start).
     Parameters already declared from overrides keep their value and get the descriptor.
     """
     values = {}
@@ -100,7 +81,19 @@ def declare_parameters(node, specs: dict) -> dict:
         except InvalidParameterTypeException as exc:
             raise ParameterError(f'parameter {name}: {exc}') from None
         values[name] = node.get_parameter(name).value
+        why = problem(spec, values[name])
+        if why:
+            raise ParameterError(f'{name} {why}')
+    specs_of(node).update(specs)
     return values
+
+
+def specs_of(node) -> dict:
+    """{name: :class:`Param`} of every parameter ``node`` declared with
+    :func:`declare_parameters` (what :class:`LiveParameters` checks a new value against)."""
+    if not hasattr(node, '_herd_param_specs'):
+        node._herd_param_specs = {}
+    return node._herd_param_specs
 
 
 def number_problem(value, minimum: float = 0.0, strict: bool = True) -> str | None:
@@ -141,7 +134,9 @@ def describe_remaining_parameters(node, descriptions):
 class LiveParameters:
     """Validate and apply ``ros2 param set`` on the node's live parameters.
 
-    ``validate(name, value) -> str | None`` returns why a value is refused (None = fine);
+    A value must first fit the parameter's table entry (type, range, choices:
+    :func:`herd_ros.params.problem`); then ``validate(name, value) -> str | None`` returns
+    why it is refused (None = fine), for what the table cannot say;
     ``apply(name, value)`` makes it take effect. Read-only parameters never reach here
     (ROS refuses them by their descriptor); a refused value leaves the parameter unchanged
     and the reason goes back to the caller and into the log.
@@ -156,7 +151,9 @@ class LiveParameters:
         for p in params:
             if p.name == 'use_sim_time':
                 continue
-            reason = self.validate(p.name, p.value)
+            spec = specs_of(self.node).get(p.name)
+            reason = (spec is not None and problem(spec, p.value)) or self.validate(p.name,
+                                                                                  p.value)
             if reason:
                 self.node.get_logger().warning(f'refused {p.name} = {p.value!r}: {reason}')
                 return SetParametersResult(successful=False, reason=f'{p.name}: {reason}')

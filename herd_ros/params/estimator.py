@@ -1,0 +1,149 @@
+"""Parameters of the ``estimator`` node: the one table its ROS parameters, their checks,
+``config/estimator.yaml`` and the documentation come from (:mod:`herd_ros.params`)."""
+from herd_ros.params import NodeTable, Param
+
+HEADER = ('# estimator: learns the herd model online (recursive least squares) from '
+          '/herd/poses.\n'
+          '# Run: ros2 run herd_ros estimator --ros-args --params-file '
+          'config/estimator.yaml\n')
+
+PARAMS = {
+    'agents': Param(
+        [],
+        'agent ids in the order of the poses in /herd/poses (required)',
+        example=['cow_1', 'cow_2', 'cow_3'],
+        doc=('Agent ids in the order of the poses in /herd/poses (same list as '
+             'gps_ingest). Required.')),
+    'dt': Param(
+        0.0,
+        ('herd clock step (s); snapshots further apart are not paired '
+         '(required, > 0)'),
+        example=1.0,
+        doc=("Herd clock step (s). Every snapshot's stamp is checked against "
+             'it: a step that differs\n'
+             'by more than 0.1 % is reported (WARN) and that pair is not used. '
+             'Required.')),
+    'law': Param(
+        'pairwise',
+        ('interaction law: pairwise (the paper) or shared (one distance '
+         'profile, neighbours within interaction_radius)'),
+        choices=('pairwise', 'shared'),
+        doc=('Interaction law: pairwise (the paper: theta1/theta2 per '
+             'neighbour, cost grows with N²;\n'
+             'fine up to a few dozen animals) or shared (one distance profile '
+             'per animal, neighbours\n'
+             'within interaction_radius; use for hundreds to thousands of '
+             'animals).')),
+    'forgetting': Param(
+        1.0,
+        'RLS forgetting factor λ in (0, 1]; 1 = never forget',
+        range=(0.0, 1.0),
+        live=True,
+        doc=('RLS forgetting factor λ in (0, 1]. 1 = never forget (equals batch '
+             'least squares).\n'
+             'With directional forgetting the memory is roughly p/(2(1 − λ)) '
+             'samples for p parameters;\n'
+             "lower it (e.g. 0.95–0.99) when the herd's behaviour changes with "
+             'season or paddock.')),
+    'p0': Param(
+        1000000.0,
+        'initial covariance P0 = p0·I (units of the noise variance)',
+        range=(1e-12, 1e+300),
+        doc=('Initial covariance P0 = p0·I, in units of the noise variance: the '
+             'ridge prior θ ~ N(0, p0 σ²).\n'
+             'Large (1e6) = uninformative; smaller keeps rarely visited field '
+             'centres near zero.')),
+    'field_grid': Param(
+        [6, 6],
+        'RBF field grid [nx, ny] over field_bounds',
+        doc=('RBF field grid [nx, ny] over field_bounds. Online the centres are '
+             'fixed: all grid\n'
+             'centres are estimated; the saved model keeps only cells an agent '
+             'visited min_visits times.')),
+    'field_bounds': Param(
+        [-75.0, 75.0, -75.0, 75.0],
+        'field bounds [xmin, xmax, ymin, ymax] (m, frame_id)',
+        doc=('Field bounds [xmin, xmax, ymin, ymax] in metres (frame map). '
+             'Cover the paddock.')),
+    'min_visits': Param(
+        10,
+        ('samples an agent needs in a cell for its centre to be kept in the '
+         'saved model'),
+        range=(0, 1000000),
+        doc=('Samples an agent needs in a cell for its centre to be kept in the '
+             'saved model.')),
+    'interaction_radius': Param(
+        60.0,
+        'shared law: neighbours within this distance (m) interact',
+        range=(1e-06, 1000000000.0),
+        doc='Shared law only: neighbours within this distance (m) interact.'),
+    'profile_size': Param(
+        6,
+        'shared law: radial basis terms of the distance profile',
+        range=(1, 1000),
+        doc=('Shared law only: number of radial basis terms of the distance '
+             'profile F(d).')),
+    'robust': Param(
+        False,
+        ('outlier-robust updates (Chang 2014): an innovation beyond χ²₂(0.95) '
+         'gets its noise inflated'),
+        live=True,
+        doc=('Outlier-robust updates (Chang 2014): an update whose innovation '
+             'is beyond χ²₂(0.95)\n'
+             'gets its noise inflated until it is not; a burst of bad positions '
+             'cannot drag θ.\n'
+             'Off by default: on clean real herds it costs ~0.6 % of one-step '
+             'RMS (their heavy\n'
+             'tails are real movement).')),
+    'model_out': Param(
+        'herd_model.yaml',
+        ('model file written by ~/save_model and at stop; relative to the data '
+         'directory'),
+        live=True,
+        doc=('Model file written by the ~/save_model service and when the node '
+             'is stopped (ROS\n'
+             'parameters YAML of DESIGN.md). Relative paths here and in '
+             'checkpoint_path are under\n'
+             'the data directory $ROS_HOME/herd_ros (~/.ros/herd_ros), never '
+             'the working directory.')),
+    'checkpoint_path': Param(
+        '',
+        ('checkpoint (.npz) of the whole estimator, resumed at start when it '
+         'matches; relative to the data directory; empty = none'),
+        example='estimator_checkpoint.npz',
+        doc=("Checkpoint file (.npz) of the whole estimator state; '' = no "
+             'checkpoints. On start the\n'
+             'node resumes from it when it exists and matches agents, law, dt '
+             'and grid (and logs\n'
+             'which); it is also written when the node is stopped.')),
+    'checkpoint_period_s': Param(
+        60.0,
+        's (wall) between checkpoints',
+        range=(0.001, 1000000000.0),
+        doc=('Seconds between checkpoints (wall time): a kill -9 loses at most '
+             'this much learning.')),
+    'new_session_after_s': Param(
+        60.0,
+        ('a snapshot this many s of data time before the latest one starts a '
+         'new session (a replay started over): the checkpoint is set aside, the '
+         'estimator starts afresh'),
+        range=(0.001, 1000000000000.0),
+        doc=('A snapshot this many seconds of data time before the latest one '
+             'starts a new session\n'
+             '(the same bag launched again, a looping replay): the checkpoint '
+             'is set aside as\n'
+             '<name>.session-<k>.npz and the estimator learns afresh, saying so '
+             'in one line.')),
+    'diagnostics_period_s': Param(
+        1.0,
+        's (wall) between /diagnostics and markers',
+        range=(0.001, 3600.0),
+        doc=('Seconds between /diagnostics and /herd/model/markers messages '
+             '(wall time).')),
+    'frame_id': Param(
+        'map',
+        'frame of the predictions and markers',
+        doc='Frame of the predictions and markers (REP-105 local ENU frame).'),
+}
+
+TABLE = NodeTable('estimator', HEADER, PARAMS)
