@@ -20,17 +20,13 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from herd_ros import process_exit
-from herd_ros.params import Param, problem
+from herd_ros.params import Param, ParameterError, problem  # noqa: F401 (re-exported)
 
 #: the nodes end their process with it (:func:`herd_ros.process_exit.exit_process`)
 exit_process = process_exit.exit_process
 
 OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
                           DiagnosticStatus.STALE)
-
-
-class ParameterError(ValueError):
-    """A parameter value a node cannot run with; the message names the parameter."""
 
 
 READ_ONLY_NOTE = ' (read-only: set at start, e.g. with --params-file)'

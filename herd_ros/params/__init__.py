@@ -29,6 +29,10 @@ NODES = ('gps_ingest', 'estimator', 'controller', 'fleet_sim', 'replay', 'record
 _UNSET = object()
 
 
+class ParameterError(ValueError):
+    """A parameter value a node cannot run with; the message names the parameter."""
+
+
 @dataclass(frozen=True)
 class Param:
     """One node parameter: its default, what it means, and whether it may change live.
@@ -177,3 +181,20 @@ def markdown_table(t: NodeTable) -> str:
         rows.append(f'| `{name}` | `{yaml_value(spec.default)}` | {limits} | '
                     f'{"yes" if spec.live else ""} | {spec.description} |')
     return '\n'.join(rows) + '\n'
+
+
+def topic_problem(topic: str) -> str | None:
+    """Why ``topic`` is not a ROS topic name (absolute or relative), or None: tokens of
+    letters, digits and underscores, none starting with a digit, separated by single '/',
+    optionally after a leading '~/' (the rules of rcl's topic name validation)."""
+    body = topic[2:] if topic.startswith('~/') else topic.lstrip('/')
+    if topic.startswith('//') or not body:
+        return 'must not be empty or start with //'
+    for token in body.split('/'):
+        if not token:
+            return 'must not contain // or end with /'
+        if token[0].isdigit():
+            return f'token {token!r} must not start with a digit'
+        if not all(c.isascii() and (c.isalnum() or c == '_') for c in token):
+            return f'token {token!r} holds a character other than letters, digits and _'
+    return None

@@ -344,3 +344,64 @@ PARAMS = {
 }
 
 TABLE = NodeTable('gps_ingest', HEADER, PARAMS)
+
+#: The node parameters that are :class:`~herd_ros.ingest.collar_filter.FilterParams` fields
+FILTER_FIELDS = ('accel_std', 'velocity_tau', 'default_position_std', 'position_std_floor',
+                 'gate_probability', 'max_speed', 'cruise_speed', 'sprint_s', 'stale_after',
+                 'initial_velocity_std', 'confirm_fixes', 'reacquire_fixes',
+                 'confirm_fixes_lost', 'reinit_after_gap', 'walk_probability')
+#: history depth of each /herd/<agent>/odom publisher (of odom_topic: this times the collars)
+ODOM_DEPTH = 10
+
+
+class GpsIngestConfig:
+    """``gps_ingest`` parameters (values checked against :data:`PARAMS`) made into what the
+    node runs with; raises :class:`~herd_ros.params.ParameterError` naming what is wrong
+    beyond the table's checks."""
+
+    def __init__(self, p: dict):
+        from herd_ros.errors import HerdInputError
+        from herd_ros.ingest.collar_filter import FilterParams
+        from herd_ros.ingest.pipeline import choose_datum, refit_config, with_walk
+        from herd_ros.model.model_file import check_agent_id
+        from herd_ros.params import ParameterError, topic_problem
+        try:
+            self.agents = [check_agent_id(a) for a in p['agents']]
+        except HerdInputError as exc:
+            raise ParameterError(f'agents: {exc}') from None
+        if not self.agents or len(set(self.agents)) != len(self.agents):
+            raise ParameterError(f'agents must be a non-empty list of distinct collar ids, '
+                                 f'got {list(p["agents"])!r}')
+        try:
+            self.datum = choose_datum(None, [float(v) for v in p['datum']]) if len(
+                p['datum']) else None
+        except (HerdInputError, TypeError, ValueError):
+            raise ParameterError(f'datum must be [] (first valid fix), [lat, lon] or [lat, '
+                                 f'lon, alt] (finite degrees within ±90/±180, metres), got '
+                                 f'{list(p["datum"])!r}') from None
+        for name in ('dt', 'diagnostics_period_s', 'max_stamp_ahead_s', 'max_clock_jump_s',
+                     'batch_period_s', 'diagnostics_max_collars', 'executor', 'motion_model'):
+            setattr(self, name, p[name])
+        filt = {name: p[name] for name in FILTER_FIELDS}
+        filt['initial_velocity_std'] = filt['initial_velocity_std'] or None
+        try:
+            self.filter_params = FilterParams(**filt)
+        except HerdInputError as exc:
+            raise ParameterError(str(exc).replace('filter parameter ', '')) from None
+        self.refit = None
+        if self.motion_model == 'fit':
+            self.filter_params = with_walk(self.filter_params)
+            self.refit = refit_config(self.filter_params, p['motion_window'])
+        self.frame_id = str(p['frame_id']).strip()
+        if not self.frame_id:
+            raise ParameterError('frame_id must be a non-empty frame name')
+        for name in ('fix_topic', 'odom_topic'):
+            topic = str(p[name]).strip()
+            why = topic and topic_problem(topic)
+            if why:
+                raise ParameterError(f'{name} must be empty or a topic name, got {topic!r} '
+                                     f'({why})')
+            setattr(self, name, topic)
+        n = len(self.agents)
+        self.fix_depth = min(p['fix_queue_depth'] * (n if self.fix_topic else 1), 10**7)
+        self.odom_depth = ODOM_DEPTH * (n if self.odom_topic else 1)

@@ -1,0 +1,311 @@
+"""A stream of collar fixes -> filtered states and herd snapshots: the core of the
+``gps_ingest`` node (issue 26), with no ROS in it.
+
+:class:`FixStream` takes fixes a batch at a time (:meth:`FixStream.push`, any collars, in
+arrival order) and keeps everything the node used to hold itself:
+
+* **the datum**: given, or the offline rule (:func:`~herd_ros.ingest.pipeline.choose_datum`,
+  the earliest-stamped valid fix), applied once every collar has sent a valid fix or
+  ``stale_after`` s of data time have passed since the first valid one; fixes are held until
+  then and released in stamp order, so the datum does not depend on arrival order and a
+  NO_FIX or NaN fix never becomes it;
+* **the stamp guard**: a fix stamped more than ``max_stamp_ahead_s`` ahead of ``now`` (the
+  caller's wall clock) is rejected as ``future`` — :func:`future_stamps`, which the offline
+  path applies to a file with the time of the run;
+* **the filters**: the compiled :class:`~herd_ros.ingest.collar_bank.CollarBank`, with the
+  per-collar motion refits of :func:`~herd_ros.ingest.motion_refit.process_with_refits` when
+  ``refit`` is given — the offline path's numerics;
+* **the herd clock** (:class:`~herd_ros.ingest.herd_clock.BatchHerdClock`, data time): a
+  forward jump of data time beyond ``max_clock_jump_s`` restarts it at the new time instead
+  of emitting every tick of the gap (:func:`clock_jumps`);
+* the bookkeeping diagnostics report: why each collar's last fix was refused, counts of
+  future stamps, restarts and ticks.
+
+Fed the same fixes in stamp order, the stream emits the snapshots of
+``trajectory_from_fixes(..., smoother='none', trim=False)`` (``test_gps_ingest_node``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pandas as pd
+
+from herd_ros.errors import HerdInputError
+from herd_ros.ingest.collar_bank import OUTCOMES, CollarBank
+from herd_ros.ingest.collar_filter import COUNTERS, STATUS_NO_FIX, FilterParams
+from herd_ros.ingest.geodesy import geodetic_to_enu
+from herd_ros.ingest.herd_clock import BatchHerdClock
+from herd_ros.ingest.motion_refit import MotionRefitter, fix_variance, process_with_refits
+from herd_ros.ingest.pipeline import choose_datum, with_walk
+from herd_ros.io.cdr import NavSatFixes, concat_fixes, no_fixes, take_fixes
+
+#: what a rejection means, for diagnostics and logs
+REJECTION_TEXT = {
+    'no_fix': 'status is STATUS_NO_FIX',
+    'nan': 'latitude or longitude is not finite',
+    'time': 'stamp not after the last fix (time going backwards, or a duplicate)',
+    'speed': 'beyond reach of the track (max_speed, cruise_speed, sprint_s): an outlier '
+             'unless more follow',
+    'gate': 'outside the Mahalanobis gate',
+    'unconfirmed': 'track lost or not started: waiting for consistent fixes',
+}
+
+
+def future_stamps(stamp: np.ndarray, now: float, max_ahead: float) -> np.ndarray:
+    """Mask of stamps more than ``max_ahead`` s after ``now``: one wrong stamp must not
+    drag the herd clock into the future."""
+    return np.asarray(stamp, float) > now + max_ahead
+
+
+def clock_jumps(herd_time: float, stamp: np.ndarray, max_jump: float) -> tuple[list, np.ndarray]:
+    """(indices where data time jumps forward by more than ``max_jump`` s, the latest time
+    before each fix): the herd clock restarts at those fixes (``herd_time`` = the clock's
+    latest time before the batch)."""
+    finite = np.where(np.isfinite(stamp), stamp, -np.inf)
+    before = np.maximum.accumulate(np.r_[herd_time, finite])[:-1]
+    seen = np.isfinite(before)
+    jumps = np.flatnonzero(seen & (finite > np.where(seen, before, 0.0) + max_jump)).tolist()
+    return jumps, before
+
+
+@dataclasses.dataclass
+class StreamOutput:
+    """What one :meth:`FixStream.push` produced: the accepted fixes' states, in order, as
+    (collars, stamps, x (M, 4), P (M, 4, 4)) per filtered batch; the herd snapshots
+    completed; and log lines (level ``'info'`` or ``'warn'``, text)."""
+
+    odometry: list = dataclasses.field(default_factory=list)
+    snapshots: list = dataclasses.field(default_factory=list)
+    log: list = dataclasses.field(default_factory=list)
+
+
+class FixStream:
+    """The ingest of a live stream of fixes (see the module docstring).
+
+    Args:
+        agents: collar ids (index = collar number in :meth:`push`).
+        dt: herd clock step (s of data time).
+        params: the filter's :class:`FilterParams` (with ``refit``: the prior and walk
+            component, :func:`~herd_ros.ingest.pipeline.with_walk`).
+        refit: a :class:`~herd_ros.ingest.motion_refit.RefitConfig`, or None (fixed model).
+        datum: (lat, lon, alt) or None for the first valid fix.
+        max_stamp_ahead_s, max_clock_jump_s: the two guards (s).
+    """
+
+    def __init__(self, agents, dt: float, params: FilterParams, refit=None, datum=None,
+                 max_stamp_ahead_s: float = math.inf, max_clock_jump_s: float = math.inf):
+        self.agents, self.dt, self.params = list(agents), float(dt), params
+        self.max_stamp_ahead_s, self.max_clock_jump_s = max_stamp_ahead_s, max_clock_jump_s
+        self.bank = CollarBank(len(self.agents), params)
+        self.refitter = MotionRefitter(len(self.agents), refit) if refit is not None else None
+        self.clock = self._new_clock()
+        self.datum = datum
+        self._pending: list[tuple] = []             # (collars, NavSatFixes) held for the datum
+        self._pending_valid: dict[int, float] = {}  # collar -> first valid stamp held
+        self._pending_latest = -math.inf
+        self.rejected_future = dict.fromkeys(self.agents, 0)
+        self.last_rejection = dict.fromkeys(self.agents, '')
+        self.dropped_waiting = 0      # fixes dropped while no valid fix had come (memory)
+        self.clock_restarts = 0
+        self.ticks = 0
+
+    @staticmethod
+    def warm_up():
+        """Load the compiled code before the first fix."""
+        CollarBank.warm_up()
+        BatchHerdClock.warm_up()
+
+    def _new_clock(self) -> BatchHerdClock:
+        return BatchHerdClock(self.agents, self.dt, self.params.stale_after,
+                              self.bank.accel_std, self.bank.velocity_tau)
+
+    @property
+    def fixes_waiting_for_datum(self) -> int:
+        return sum(len(c) for c, _ in self._pending)
+
+    # -- live parameters (accel_std, max_speed, cruise_speed, sprint_s) --------------------
+    def _changed(self, name, value) -> FilterParams:
+        if name == 'accel_std' and self.refitter is not None:
+            # fitted collars: the parameter is the walk component's (and the prior's)
+            p = dataclasses.replace(self.params, walk_accel_std=None, walk_velocity_tau=None,
+                                    accel_std=float(value), velocity_tau=self.params.walk[1])
+            return with_walk(p)
+        return dataclasses.replace(self.params, **{name: float(value)})
+
+    def check_param(self, name, value) -> str | None:
+        """Why the filter cannot take ``name = value`` (None = it can)."""
+        try:
+            self._changed(name, value)
+        except HerdInputError as exc:
+            return str(exc)
+        return None
+
+    def set_param(self, name, value):
+        """The bank reads its parameters at every batch: the next fix uses the new value."""
+        self.params = self.bank.params = self._changed(name, value)
+        if name == 'accel_std':
+            if self.refitter is None:
+                self.bank.accel_std[:] = self.params.accel_std
+            else:       # the collars not fitted yet move by the new prior
+                unfitted = np.array([f is None for f in self.refitter.fits])
+                self.bank.accel_std[unfitted] = self.params.accel_std
+                w = self.params.walk
+                self.refitter.config.walk = (w[0], w[1], self.params.walk_probability)
+
+    # -- fixes ------------------------------------------------------------------------
+    def push(self, collars: np.ndarray, fixes: NavSatFixes, now: float) -> StreamOutput:
+        """Fixes of ``collars`` (arrival order), received at wall time ``now``."""
+        out = StreamOutput()
+        future = np.flatnonzero(future_stamps(fixes.stamp, now, self.max_stamp_ahead_s))
+        if len(future):
+            for k in future.tolist():
+                agent = self.agents[collars[k]]
+                self.rejected_future[agent] += 1
+                self.last_rejection[agent] = (f'future: stamp {fixes.stamp[k]:.3f} is more '
+                                              f'than max_stamp_ahead_s ahead of the wall clock')
+            keep = np.ones(len(collars), bool)
+            keep[future] = False
+            collars, fixes = collars[keep], take_fixes(fixes, keep)
+        if self.datum is None and len(collars):
+            collars, fixes = self._hold(collars, fixes, out)
+        if len(collars):
+            self._filter(collars, fixes, out)
+        return out
+
+    def _filter(self, idx: np.ndarray, fixes: NavSatFixes, out: StreamOutput):
+        stamp = fixes.stamp
+        lat0, lon0, alt0 = self.datum
+        with np.errstate(invalid='ignore'):
+            e, n, _ = geodetic_to_enu(fixes.lat, fixes.lon, fixes.alt, lat0, lon0, alt0,
+                                      nan_alt=alt0)
+        if self.refitter is None:
+            batch = self.bank.process(idx, stamp, e, n, fixes.status,
+                                      self.bank.measurement_covariances(fixes.cov_type,
+                                                                        fixes.cov, idx))
+            motion = None
+        else:
+            var = fix_variance(fixes.cov_type, fixes.cov[:, 0], fixes.cov[:, 4],
+                               self.params.position_std_floor)
+            batch, motion = process_with_refits(self.bank, self.refitter, idx, stamp, e, n,
+                                                fixes.status, fixes.cov_type, fixes.cov, var)
+        accepted = batch.accepted
+        done = np.flatnonzero(accepted)
+        out.odometry.append((idx[done], stamp[done], batch.x[done], batch.P[done]))
+        rejected = np.flatnonzero(~accepted).tolist()
+        for k in rejected:
+            agent, reason = self.agents[idx[k]], OUTCOMES[batch.outcome[k]]
+            detail = REJECTION_TEXT[reason]
+            if reason == 'gate':
+                detail += f' (distance² {batch.mahalanobis2[k]:.1f})'
+            self.last_rejection[agent] = f'{reason}: {detail}'
+        if rejected:
+            k = rejected[0]
+            agent = self.agents[idx[k]]
+            more = f' (and {len(rejected) - 1} more in this batch)' if len(rejected) > 1 else ''
+            out.log.append(('warn', f'{agent}: fix at {stamp[k]:.3f} rejected '
+                                    f'({self.last_rejection[agent]}){more}'))
+        jumps, before = clock_jumps(self.clock.herd_time, stamp, self.max_clock_jump_s)
+        start, m = 0, len(idx)
+        for j in jumps + [m]:
+            if j > start:
+                sl = slice(start, j)
+                snaps = self.clock.observe(idx[sl], stamp[sl], accepted[sl], batch.x[sl],
+                                           batch.P[sl], None if motion is None else motion[sl])
+                out.snapshots.extend(snaps)
+                self.ticks += len(snaps)
+            if j < m:
+                self.clock_restarts += 1
+                out.log.append(('warn', f'data time jumped {stamp[j] - before[j]:.0f} s '
+                                        f'(> max_clock_jump_s): herd clock restarted at '
+                                        f'{stamp[j]:.3f}'))
+                self.clock = self._new_clock()
+                start = j
+
+    # -- datum from the first valid fix -----------------------------------------------
+    def _hold(self, collars: np.ndarray, fixes: NavSatFixes, out: StreamOutput):
+        """Hold fixes until the datum can be chosen; then return every fix held, in stamp
+        order (else nothing)."""
+        self._pending.append((collars, fixes))
+        self._pending_latest = max(self._pending_latest, float(fixes.stamp.max()))
+        valid = ((fixes.status != STATUS_NO_FIX) & np.isfinite(fixes.lat)
+                 & np.isfinite(fixes.lon))
+        for k in np.flatnonzero(valid).tolist():
+            self._pending_valid.setdefault(int(collars[k]), float(fixes.stamp[k]))
+        nothing = (np.zeros(0, np.int64), no_fixes())
+        if not self._pending_valid:
+            held = self.fixes_waiting_for_datum
+            while held > 100 * len(self.agents) and len(self._pending) > 1:
+                dropped = len(self._pending.pop(0)[0])   # nothing valid yet: bound memory
+                self.dropped_waiting += dropped
+                held -= dropped
+            return nothing
+        everyone = len(self._pending_valid) == len(self.agents)
+        waited = (self._pending_latest - min(self._pending_valid.values())
+                  > self.params.stale_after)
+        if not (everyone or waited):
+            return nothing
+        collars = np.concatenate([c for c, _ in self._pending])
+        held = concat_fixes([f for _, f in self._pending])
+        table = pd.DataFrame({'time': held.stamp,
+                              'agent': [self.agents[i] for i in collars.tolist()],
+                              'lat': held.lat, 'lon': held.lon, 'alt': held.alt,
+                              'status': held.status})
+        self.datum = choose_datum(table)
+        out.log.append(('info', datum_text(self.datum, 'first valid fix')))
+        self._pending = []
+        order = np.argsort(held.stamp, kind='stable')
+        return collars[order], take_fixes(held, order)
+
+    # -- diagnostics ------------------------------------------------------------------
+    def stale(self) -> np.ndarray:
+        """Which collars are stale at the herd clock's time."""
+        t = self.clock.herd_time
+        return self.bank.is_stale(t) if math.isfinite(t) else np.zeros(len(self.agents), bool)
+
+    def counters(self, i: int) -> dict:
+        """Collar ``i``'s outcome counters (:data:`COUNTERS` and ``rejected_future``)."""
+        c = self.bank.counter_dict(i)
+        c['rejected_future'] = self.rejected_future[self.agents[i]]
+        return c
+
+    def collar_status(self, i: int, stale: bool, rejected_now: bool) -> tuple[bool, str]:
+        """(warn, message) of collar ``i``: a rejection since the last report, or stale."""
+        if rejected_now:
+            return True, f'rejected {self.last_rejection[self.agents[i]]}'
+        if stale:
+            return True, ('stale: no accepted fix yet' if not self.bank.initialised[i] else
+                          f'stale: silent for more than {self.params.stale_after:g} s, '
+                          f'missing (NaN) in /herd/poses')
+        return False, 'ok'
+
+    def totals(self, stale_count: int) -> dict:
+        """The node-level values of diagnostics."""
+        totals = self.bank.counters.sum(axis=0)
+        return {'herd_time': self.clock.herd_time, 'ticks_published': self.ticks,
+                'fixes': int(totals[:-1].sum()) + sum(self.rejected_future.values()),
+                'accepted': int(totals[0]), 'stale_collars': stale_count,
+                'clock_restarts': self.clock_restarts,
+                'fixes_waiting_for_datum': self.fixes_waiting_for_datum,
+                'datum': ('waiting for the first valid fix' if self.datum is None
+                          else ', '.join(f'{v:.9f}' for v in self.datum))}
+
+
+def collar_frames(agents) -> dict:
+    """header.frame_id -> collar index on a shared fix topic: ``<agent>`` and the sensor
+    frames ``<agent>_gps`` (what ``herd-ros import`` writes) and ``<agent>/gps``."""
+    frames = {}
+    for i, agent in enumerate(agents):
+        for frame in (agent, f'{agent}_gps', f'{agent}/gps'):
+            frames.setdefault(frame, i)
+    return frames
+
+
+def datum_text(datum, source: str) -> str:
+    """The one line that says which datum is used."""
+    return 'datum (%s): lat %.9f lon %.9f alt %.3f' % ((source,) + tuple(datum))
+
+
+__all__ = ['COUNTERS', 'FixStream', 'REJECTION_TEXT', 'StreamOutput', 'clock_jumps',
+           'collar_frames', 'datum_text', 'future_stamps']
