@@ -38,7 +38,7 @@ def test_config_file_sets_the_defaults(t):
 def test_every_declared_parameter_is_in_a_table():
     """The nodes declare their parameters from these tables (names of the modules' dicts)."""
     from herd_ros.nodes import (controller, estimator, fleet_sim, flocking_mode, gps_ingest,
-                                record, replay)
+                                herd_model_mode, record, replay)
     from herd_ros.params import controller as c
     for module, params in [(gps_ingest, table('gps_ingest').params),
                            (estimator, table('estimator').params),
@@ -46,7 +46,7 @@ def test_every_declared_parameter_is_in_a_table():
                            (replay, table('replay').params), (record, table('record').params),
                            (controller, c.COMMON)]:
         assert module.DEFAULTS is params
-    assert controller.HERD_MODEL_DEFAULTS is c.HERD_MODEL
+    assert herd_model_mode.HERD_MODEL_DEFAULTS is c.HERD_MODEL
     assert flocking_mode.FLOCKING_DEFAULTS is c.FLOCKING
 
 

@@ -48,7 +48,7 @@ PARAMS = {
     'max_speed': Param(
         1.0,
         'speed limit (m/s)',
-        range=(0.0, 100.0),
+        range=(1e-06, 100.0),
         live=True,
         doc=('\n'
              'Speed limit (m/s), acceleration limit (m/s², on the velocity '
@@ -147,3 +147,50 @@ PARAMS = {
 }
 
 TABLE = NodeTable('fleet_sim', HEADER, PARAMS)
+
+
+class FleetSimConfig:
+    """fleet_sim parameters (values checked against :data:`PARAMS`) made into what the
+    node runs with; raises :class:`~herd_ros.params.ParameterError` naming what is wrong
+    beyond the table's checks."""
+
+    def __init__(self, p: dict):
+        import numpy as np
+
+        from herd_ros.control.safety import Fence, Obstacles
+        from herd_ros.errors import HerdInputError
+        from herd_ros.model.model_file import check_agent_id
+        from herd_ros.params import ParameterError
+        try:
+            self.robots = [check_agent_id(r) for r in p['robots']]
+        except HerdInputError as exc:
+            raise ParameterError(f'robots: {exc}') from None
+        if not self.robots or len(set(self.robots)) != len(self.robots):
+            raise ParameterError('robots must be a non-empty list of distinct names')
+        # types, ranges (> 0, >= 0) and choices: checked against the table
+        for name in ('kinematics', 'rate_hz', 'max_speed', 'max_accel', 'max_yaw_rate',
+                     'cmd_timeout_s', 'fix_rate_hz', 'diagnostics_period_s', 'robot_radius',
+                     'gps_noise_std'):
+            setattr(self, name, p[name])
+        n = len(self.robots)
+        poses = np.asarray(list(p['initial_poses']), dtype=float)
+        if poses.size == 0:
+            poses = np.column_stack([2.0 * np.arange(n), np.zeros(n), np.zeros(n)])
+        elif poses.size != 3 * n or not np.isfinite(poses).all():
+            raise ParameterError(f'initial_poses needs x, y, yaw for each of the {n} robots '
+                                 f'({3 * n} finite numbers), got {poses.size}')
+        self.initial_poses = poses.reshape(n, 3)
+        try:
+            self.obstacles = Obstacles.from_flat(p['obstacles'])
+            self.fence = Fence.from_flat(p['fence'])
+        except HerdInputError as exc:
+            raise ParameterError(str(exc)) from None
+        if self.fence is not None and not self.fence.contains(self.initial_poses[:, :2]).all():
+            raise ParameterError('initial_poses: every robot must start inside the fence')
+        datum = [float(x) for x in p['datum']]
+        if len(datum) not in (2, 3) or not np.isfinite(datum).all() or abs(datum[0]) > 90:
+            raise ParameterError(f'datum must be [lat, lon] or [lat, lon, alt] in degrees, '
+                                 f'got {p["datum"]!r}')
+        self.datum = datum + [0.0] * (3 - len(datum))
+        self.frame_id = str(p['frame_id'])
+        self.seed = int(p['seed'])

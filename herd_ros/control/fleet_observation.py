@@ -1,0 +1,29 @@
+"""What a control mode sees of the fleet at a tick (the controller node fills it from
+odometry; every mode's ``command(state)`` reads it)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class FleetObservation:
+    """What a policy sees at a tick; arrays over the R observed robots (own first).
+
+    positions (R, 2) m and yaw (R,) rad in the map frame (NaN until the first odometry),
+    velocity (R, 2) m/s measured in the world frame, active (R,) fresh odometry,
+    owned (R,) commanded by this controller, last_command (R, 2) world velocity issued
+    last tick after the safety layer (measured velocity for robots not owned), period h (s),
+    time (s, node clock).
+    """
+
+    robots: list[str]
+    owned: np.ndarray
+    positions: np.ndarray
+    yaw: np.ndarray
+    velocity: np.ndarray
+    active: np.ndarray
+    last_command: np.ndarray
+    period: float
+    time: float
