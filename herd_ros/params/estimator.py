@@ -147,3 +147,44 @@ PARAMS = {
 }
 
 TABLE = NodeTable('estimator', HEADER, PARAMS)
+
+
+def check(values: dict) -> dict:
+    """The estimator's parameters (checked against :data:`PARAMS`) checked for what the
+    table cannot say; :class:`~herd_ros.params.ParameterError` names the one at fault."""
+    import math
+
+    from herd_ros.params import ParameterError
+    agents = values['agents']
+    if not agents or len(set(agents)) != len(agents):
+        raise ParameterError('parameter agents must be a non-empty list of distinct agent ids '
+                             '(the order of the poses in /herd/poses)')
+    if not (math.isfinite(values['dt']) and values['dt'] > 0):
+        raise ParameterError(f'parameter dt must be the herd clock step in seconds (> 0), got '
+                             f'{values["dt"]}')
+    if values['law'] == 'pairwise' and len(agents) < 2:
+        raise ParameterError('law pairwise needs at least two agents')
+    reason = forgetting_problem(values['forgetting'])
+    if reason:
+        raise ParameterError(f'parameter forgetting {reason}')
+    grid = list(values['field_grid'])
+    if len(grid) != 2 or min(grid) < 1:
+        raise ParameterError(f'parameter field_grid must be [nx, ny] with nx, ny ≥ 1, got {grid}')
+    b = [float(v) for v in values['field_bounds']]
+    if len(b) != 4 or not (b[0] < b[1] and b[2] < b[3]):
+        raise ParameterError(f'parameter field_bounds must be [xmin, xmax, ymin, ymax] with '
+                             f'xmin < xmax and ymin < ymax, got {b}')
+    if not values['new_session_after_s'] > 0:
+        raise ParameterError(f'parameter new_session_after_s must be positive, got '
+                             f'{values["new_session_after_s"]}')
+    values['field_grid'], values['field_bounds'] = grid, b
+    return values
+
+
+def forgetting_problem(value) -> str | None:
+    """Why ``value`` is not a forgetting factor in (0, 1], or None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return f'must be a number in (0, 1], got {value!r}'
+    if not 0 < value <= 1:
+        return f'must be in (0, 1], got {value}'
+    return None
