@@ -1,7 +1,7 @@
 """`herd-ros demo`: the main job on a recorded herd (by default the shipped real one).
 
 Live (default): the ROS graph replay → gps_ingest → estimator → controller → fleet_sim in one
-process (:mod:`herd_ros.nodes.live_demo`); robots learn from the animals while they move and
+process (:mod:`herd_ros.cli.live_demo`); robots learn from the animals while they move and
 move like them. Everything herd-specific (datum, clock, field, fence, robots, replay rate)
 comes from the bag (:mod:`herd_ros.herd_setup`) and is printed. Report: parameters over time,
 robots vs animals over the fence, statistics bars, ``summary.json``, ``herd_poses.csv``,
@@ -64,7 +64,7 @@ def add_arguments(p):
 def run(args) -> int:
     if args.offline:
         return run_offline(args)
-    from herd_ros.nodes.live_demo import run_live_demo
+    from herd_ros.cli.live_demo import run_live_demo
     if args.rate is not None and not args.rate > 0:
         raise HerdInputError(f'--rate must be positive, got {args.rate}')
     if args.dt is not None and not args.dt > 0:

@@ -38,7 +38,7 @@ from herd_ros.io.bags import bag_info, read_raw_messages
 from herd_ros.nodes.ros_common import (LiveParameters, ParameterError, declare_parameters,
                                        describe_remaining_parameters, exit_process,
                                        number_problem, run_node, seconds_to_stamp)
-from herd_ros.params.replay import PARAMS as DEFAULTS
+from herd_ros.params.replay import PARAMS as DEFAULTS, ReplayConfig
 
 
 def message_class(msgtype: str):
@@ -57,17 +57,6 @@ def wall_schedule(t_ns: int, t_first_ns: int, t0_wall: float, rate: float) -> fl
     return t0_wall + (t_ns - t_first_ns) * 1e-9 / rate
 
 
-def parse_remap(rules) -> dict[str, str]:
-    """``['old:=new', ...]`` -> ``{old: new}``."""
-    out = {}
-    for rule in rules:
-        old, sep, new = rule.partition(':=')
-        if not sep or not old.strip() or not new.strip():
-            raise ParameterError(f'remap entries must read old:=new, got {rule!r}')
-        out[old.strip()] = new.strip()
-    return out
-
-
 def qos_profile(recorded, default: str, depth: int) -> QoSProfile:
     """rclpy QoS from the first recorded ``rosbags.interfaces.Qos`` (enum values are the
     rmw ones), else the default described in the module docstring."""
@@ -83,40 +72,6 @@ def qos_profile(recorded, default: str, depth: int) -> QoSProfile:
         return qos_profile_sensor_data
     return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
-
-
-class ReplayConfig:
-    """Validated replay parameters (raises :class:`ParameterError` naming the parameter)."""
-
-    def __init__(self, p: dict):
-        self.bag = str(p['bag']).strip()
-        if not self.bag:
-            raise ParameterError('bag: give the path of a rosbag2 directory or .mcap file')
-        for name in ('rate', 'clock_rate_hz', 'progress_period_s'):
-            if not isinstance(p[name], (int, float)) or not p[name] > 0:
-                raise ParameterError(f'{name} must be a number > 0, got {p[name]!r}')
-        self.rate = float(p['rate'])
-        self.clock_rate_hz = float(p['clock_rate_hz'])
-        self.progress_period_s = float(p['progress_period_s'])
-        if not isinstance(p['start_offset'], (int, float)) or p['start_offset'] < 0:
-            raise ParameterError(f'start_offset must be ≥ 0 s, got {p["start_offset"]!r}')
-        self.start_offset = float(p['start_offset'])
-        self.loop = bool(p['loop'])
-        self.publish_clock = bool(p['publish_clock'])
-        self.qos_from_bag = bool(p['qos_from_bag'])
-        if p['default_qos'] not in ('reliable', 'sensor_data'):
-            raise ParameterError(f'default_qos must be reliable or sensor_data, got '
-                                 f'{p["default_qos"]!r}')
-        self.default_qos = p['default_qos']
-        for name in ('default_qos_depth', 'wait_for_subscribers'):
-            if not isinstance(p[name], int) or p[name] < (1 if 'depth' in name else 0):
-                raise ParameterError(f'{name} must be an integer ≥ '
-                                     f'{1 if "depth" in name else 0}, got {p[name]!r}')
-        self.default_qos_depth = int(p['default_qos_depth'])
-        self.wait_for_subscribers = int(p['wait_for_subscribers'])
-        self.topics = [str(t) for t in p['topics']]
-        self.remap = parse_remap(p['remap'])
-        self.exit_when_done = bool(p['exit_when_done'])
 
 
 class Replay(Node):

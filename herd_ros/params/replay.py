@@ -129,3 +129,33 @@ PARAMS = {
 }
 
 TABLE = NodeTable('replay', HEADER, PARAMS)
+
+
+def parse_remap(rules) -> dict[str, str]:
+    """``['old:=new', ...]`` -> ``{old: new}``."""
+    from herd_ros.params import ParameterError
+    out = {}
+    for rule in rules:
+        old, sep, new = rule.partition(':=')
+        if not sep or not old.strip() or not new.strip():
+            raise ParameterError(f'remap entries must read old:=new, got {rule!r}')
+        out[old.strip()] = new.strip()
+    return out
+
+
+class ReplayConfig:
+    """replay parameters (values checked against :data:`PARAMS`: types, ranges, choices)
+    made into what the node runs with; :class:`~herd_ros.params.ParameterError` names what
+    is wrong beyond the table's checks."""
+
+    def __init__(self, p: dict):
+        from herd_ros.params import ParameterError
+        self.bag = str(p['bag']).strip()
+        if not self.bag:
+            raise ParameterError('bag: give the path of a rosbag2 directory or .mcap file')
+        for name in ('rate', 'clock_rate_hz', 'progress_period_s', 'start_offset', 'loop',
+                     'publish_clock', 'qos_from_bag', 'default_qos', 'default_qos_depth',
+                     'wait_for_subscribers', 'exit_when_done'):
+            setattr(self, name, p[name])
+        self.topics = [str(t) for t in p['topics']]
+        self.remap = parse_remap(p['remap'])
