@@ -183,6 +183,21 @@ def markdown_table(t: NodeTable) -> str:
     return '\n'.join(rows) + '\n'
 
 
+def distinct_ids(values: dict, name: str, what: str = 'ids') -> list[str]:
+    """Parameter ``name`` as a non-empty list of distinct ids that are valid ROS names
+    (:func:`~herd_ros.model.model_file.check_agent_id`), or :class:`ParameterError`."""
+    from herd_ros.errors import HerdInputError
+    from herd_ros.model.model_file import check_agent_id
+    try:
+        ids = [check_agent_id(a) for a in values[name]]
+    except HerdInputError as exc:
+        raise ParameterError(f'{name}: {exc}') from None
+    if not ids or len(set(ids)) != len(ids):
+        raise ParameterError(f'{name} must be a non-empty list of distinct {what}, got '
+                             f'{list(values[name])!r}')
+    return ids
+
+
 def topic_problem(topic: str) -> str | None:
     """Why ``topic`` is not a ROS topic name (absolute or relative), or None: tokens of
     letters, digits and underscores, none starting with a digit, separated by single '/',

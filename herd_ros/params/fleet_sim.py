@@ -159,14 +159,8 @@ class FleetSimConfig:
 
         from herd_ros.control.safety import Fence, Obstacles
         from herd_ros.errors import HerdInputError
-        from herd_ros.model.model_file import check_agent_id
-        from herd_ros.params import ParameterError
-        try:
-            self.robots = [check_agent_id(r) for r in p['robots']]
-        except HerdInputError as exc:
-            raise ParameterError(f'robots: {exc}') from None
-        if not self.robots or len(set(self.robots)) != len(self.robots):
-            raise ParameterError('robots must be a non-empty list of distinct names')
+        from herd_ros.params import ParameterError, distinct_ids
+        self.robots = distinct_ids(p, 'robots', 'names')
         # types, ranges (> 0, >= 0) and choices: checked against the table
         for name in ('kinematics', 'rate_hz', 'max_speed', 'max_accel', 'max_yaw_rate',
                      'cmd_timeout_s', 'fix_rate_hz', 'diagnostics_period_s', 'robot_radius',

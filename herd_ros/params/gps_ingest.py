@@ -363,15 +363,8 @@ class GpsIngestConfig:
         from herd_ros.errors import HerdInputError
         from herd_ros.ingest.collar_filter import FilterParams
         from herd_ros.ingest.pipeline import choose_datum, refit_config, with_walk
-        from herd_ros.model.model_file import check_agent_id
-        from herd_ros.params import ParameterError, topic_problem
-        try:
-            self.agents = [check_agent_id(a) for a in p['agents']]
-        except HerdInputError as exc:
-            raise ParameterError(f'agents: {exc}') from None
-        if not self.agents or len(set(self.agents)) != len(self.agents):
-            raise ParameterError(f'agents must be a non-empty list of distinct collar ids, '
-                                 f'got {list(p["agents"])!r}')
+        from herd_ros.params import ParameterError, distinct_ids, topic_problem
+        self.agents = distinct_ids(p, 'agents', 'collar ids')
         try:
             self.datum = choose_datum(None, [float(v) for v in p['datum']]) if len(
                 p['datum']) else None
