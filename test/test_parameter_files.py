@@ -75,3 +75,16 @@ def test_markdown_table_lists_every_parameter():
     t = table('gps_ingest')
     text = markdown_table(t)
     assert all(f'| `{name}` |' in text for name in t.params)
+
+
+def test_params_verb_writes_the_shipped_files_and_prints_a_table(tmp_path, capsys):
+    from herd_ros.cli.main import main
+    assert main(['params', '--write', str(tmp_path)]) == 0
+    for t in TABLES:
+        assert (tmp_path / t.config_file).read_text() == (ROOT / 'config' /
+                                                          t.config_file).read_text()
+    capsys.readouterr()
+    assert main(['params', 'fleet_sim']) == 0
+    out = capsys.readouterr().out
+    assert '| `robots` |' in out and '| `cmd_timeout_s` |' in out
+    assert main(['params', '--write', str(tmp_path / 'missing')]) == 2
