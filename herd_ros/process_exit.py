@@ -28,3 +28,37 @@ def exit_process(code: int):
             pass
     atexit._run_exitfuncs()
     os._exit(int(code))
+
+
+def exit_later_without_gil(seconds: float) -> bool:
+    """Arm a POSIX timer that ends the process with status 0 after ``seconds`` — from a
+    native thread (``timer_create`` with ``SIGEV_THREAD`` calling libc ``_exit(0)``), so it
+    fires even when the main thread is blocked inside a C call that holds the GIL (a DDS
+    participant's destruction in rclpy's ``destroy_node`` was seen to hang so, where a
+    ``threading.Timer`` never runs). Nothing is flushed when it fires: flush first. Returns
+    False where the timer cannot be armed (not Linux/glibc): then there is no backstop."""
+    import ctypes
+
+    class Sigevent(ctypes.Structure):          # struct sigevent (64 bytes on Linux)
+        _fields_ = [('value', ctypes.c_void_p), ('signo', ctypes.c_int),
+                    ('notify', ctypes.c_int), ('function', ctypes.c_void_p),
+                    ('attribute', ctypes.c_void_p), ('_pad', ctypes.c_byte * 32)]
+
+    class Timespec(ctypes.Structure):
+        _fields_ = [('sec', ctypes.c_long), ('nsec', ctypes.c_long)]
+
+    class Itimerspec(ctypes.Structure):
+        _fields_ = [('interval', Timespec), ('value', Timespec)]
+
+    sigev_thread, clock_monotonic = 2, 1
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        event = Sigevent(value=0, signo=0, notify=sigev_thread,
+                         function=ctypes.cast(libc._exit, ctypes.c_void_p).value)
+        timer = ctypes.c_void_p()
+        if libc.timer_create(clock_monotonic, ctypes.byref(event), ctypes.byref(timer)):
+            return False
+        when = Itimerspec(value=Timespec(int(seconds), int(seconds % 1.0 * 1e9)))
+        return libc.timer_settime(timer, 0, ctypes.byref(when), None) == 0
+    except (AttributeError, OSError, TypeError, ValueError):
+        return False

@@ -113,3 +113,16 @@ def test_one_signal_stops_every_busy_node_cleanly(tmp_path, ros_env, console_scr
         worst = {n: max(worst.get(n, 0.0), t) for n, t in took.items()}
     print(f'{signal.Signals(sig).name}: slowest exit per node over {rounds} round(s):',
           {n: round(t, 3) for n, t in worst.items()})
+
+
+def test_the_teardown_backstop_ends_a_process_blocked_holding_the_gil():
+    """A C call that holds the GIL (as rclpy's destroy_node was seen to, in Fast DDS's
+    participant teardown) blocks every Python thread, the teardown watchdog's timer too;
+    the native timer still ends the process, with status 0."""
+    import sys
+    code = ('import ctypes; from herd_ros.process_exit import exit_later_without_gil; '
+            'assert exit_later_without_gil(0.3); '
+            'ctypes.PyDLL(None).sleep(60)')          # libc sleep without releasing the GIL
+    done = subprocess.run([sys.executable, '-c', code], timeout=30,
+                          cwd=REPO)
+    assert done.returncode == 0

@@ -363,7 +363,10 @@ def _teardown_watchdog():
     node, executor and DDS participant has not finished within :data:`TEARDOWN_LIMIT_S`,
     leave anyway with status 0 (one line on stderr, no traceback). A launch or supervisor
     waits for the process, not for its participant; once in some thirty whole-graph stops a
-    node was seen still alive 10 s after its signal, somewhere in that teardown."""
+    node was seen still alive 10 s after its signal, somewhere in that teardown: blocked in
+    rclpy's ``destroy_node`` holding the GIL, where this Python timer cannot run — so a
+    native timer (:func:`herd_ros.process_exit.exit_later_without_gil`) ends the process
+    with status 0 one second later whatever the interpreter is doing."""
     import os
 
     def expire():
@@ -379,5 +382,11 @@ def _teardown_watchdog():
     timer = threading.Timer(TEARDOWN_LIMIT_S, expire)
     timer.daemon = True
     timer.start()
+    for stream in (sys.stdout, sys.stderr):     # the native timer flushes nothing
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    process_exit.exit_later_without_gil(TEARDOWN_LIMIT_S + 1.0)
 
 
