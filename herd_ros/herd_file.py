@@ -234,9 +234,10 @@ def node_parameters(setup: HerdSetup, bag, out_dir=None, rate=None,
             'interaction_radius': float(setup.interaction_radius), **files,
             'checkpoint_period_s': 3600.0}},
         'controller': {'ros__parameters': {
-            **common, **field, 'robots': list(setup.robots), 'assignment': list(setup.agents),
-            'agents': list(setup.agents), 'dt': dt, 'mode': 'herd_model', 'law': setup.law,
-            'interaction_radius': float(setup.interaction_radius),
+            # the model's structure (agents, dt, law, field) comes from the estimator's
+            # /herd/model/structure: declared once, there
+            **common, 'robots': list(setup.robots), 'assignment': list(setup.agents),
+            'mode': 'herd_model',
             # the estimator's first five minutes of data (at least 30 steps) are too few
             # for a usable law
             'model_source': 'topic', 'model_min_updates': int(max(30, np.ceil(300.0 / dt))),

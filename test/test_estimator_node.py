@@ -13,11 +13,12 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import Pose, PoseArray  # noqa: E402
-from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from std_msgs.msg import Float64MultiArray  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from std_msgs.msg import Float64MultiArray, String  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from herd_ros.model.model_file import load_model  # noqa: E402
+from herd_ros.model.model_structure import ModelStructure  # noqa: E402
 from herd_ros.nodes.ros_common import seconds_to_stamp  # noqa: E402
 from herd_ros.simulation.herd_simulator import simulate  # noqa: E402
 from herd_ros.synthesis.known_truth import initial_positions, make_truth_model  # noqa: E402
@@ -57,6 +58,10 @@ class Feeder:
         self.samples = {}
         self.received = -1  # snapshots the estimator reports having received
         node.create_subscription(Float64MultiArray, '/herd/model/params', self._on_params, 10)
+        self.structure = None      # latched: a subscriber that joins late still gets it
+        node.create_subscription(String, '/herd/model/structure', self._on_structure,
+                                 QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                            durability=DurabilityPolicy.TRANSIENT_LOCAL))
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 50)
         self.save = node.create_client(Trigger, '/estimator/save_model')
         self.executor = rclpy.executors.SingleThreadedExecutor(context=node.context)
@@ -64,6 +69,9 @@ class Feeder:
 
     def _on_params(self, msg):
         self.params = msg
+
+    def _on_structure(self, msg):
+        self.structure = ModelStructure.from_json(msg.data)
 
     def _on_diag(self, msg):
         for s in msg.status:
@@ -160,6 +168,14 @@ def test_node_converges_to_the_truth(ros, herd, console_script, tmp_path):
         dims = feeder.params.layout.dim
         assert [d.label for d in dims] == ['agent', 'param']
         theta = np.array(feeder.params.data).reshape(dims[0].size, dims[1].size)
+        # what a reader needs to read θ comes with it (issue 26): the run's agents in order,
+        # the clock step, the grid the node was started with
+        assert feeder.spin(5.0, lambda: feeder.structure is not None)
+        st = feeder.structure
+        assert st.agents == tuple(run.agents) and st.law == 'pairwise'
+        assert st.field_grid == GRID and st.field_bounds == BOUNDS
+        assert st.dt == pytest.approx(float(run.times[1] - run.times[0]))
+        assert theta.shape == (len(run.agents), st.n_params)
         result = feeder.call_save()
         assert result.success, result.message
     finally:

@@ -16,9 +16,11 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 
 from herd_ros.model.model_file import save_model
+from herd_ros.model.model_structure import ModelStructure
 from herd_ros.synthesis.known_truth import make_truth_model
 from ros_harness import TestListener, start, stop
 
@@ -231,13 +233,19 @@ def test_live_model_from_the_estimator_topic(graph):
     g, ear = graph
     cmds = {r: ear.record(Twist, f'/fleet/{r}/cmd_vel') for r in ('r1', 'r2')}
     g.start('controller', '--params-file', str(CONFIG / 'controller.yaml'),
-            '-p', 'robots:=[r1, r2]', '-p', 'model_source:=topic',
-            '-p', 'agents:=[agent_1, agent_2, agent_3]', '-p', 'dt:=1.0',
-            '-p', 'field_grid:=[6, 6]', '-p', flag('field_bounds', [-150.0, 150.0, -150.0, 150.0]),
-            '-p', 'max_speed:=0.8')
+            '-p', 'robots:=[r1, r2]', '-p', 'model_source:=topic', '-p', 'max_speed:=0.8')
     model = make_truth_model(3, seed=1)
     theta = np.stack([model.laws[a].theta for a in model.agents])
     params = ear.node.create_publisher(Float64MultiArray, '/herd/model/params', 10)
+    # what the estimator publishes, latched: how to read the rows (the controller declares
+    # none of it)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    structure = ModelStructure(tuple(model.agents), 1.0, 'pairwise', (6, 6),
+                               (-150.0, 150.0, -150.0, 150.0), 60.0, 6)
+    assert structure.n_params == theta.shape[1]
+    ear.node.create_publisher(String, '/herd/model/structure', latched).publish(
+        String(data=structure.to_json()))
     odom_pubs = {r: ear.node.create_publisher(Odometry, f'/fleet/{r}/odom', 10)
                  for r in ('r1', 'r2')}
 

@@ -31,7 +31,7 @@ def _node_commands(tmp_path):
     return {
         'gps_ingest': [ros, '-p', 'agents:=[cow_1, cow_2]'],
         'estimator': [ros, '-p', 'agents:=[cow_1, cow_2]', '-p', 'dt:=20.0'],
-        'controller': [ros, '-p', 'model_source:=topic', '-p', 'agents:=[cow_1, cow_2]',
+        'controller': [ros, '-p', 'model_source:=topic',
                        '-p', 'robots:=[other_1, other_2]'],  # not fleet_sim's robot_1
         'fleet_sim': [ros, '-p', 'robots:=[robot_1]'],
         'replay': [ros, '-p', f'bag:={BAG}', '-p', 'wait_for_subscribers:=1000'],

@@ -217,6 +217,14 @@ class OnlineHerdEstimator:
                        'profile_size': int(profile_size), 'robust': self.robust}
         self._reset_stream()
 
+    def structure(self):
+        """The :class:`~herd_ros.model.model_structure.ModelStructure` a reader of
+        :attr:`theta` needs (published beside it, so no reader restates it)."""
+        from herd_ros.model.model_structure import ModelStructure
+        c = self.config
+        return ModelStructure(c['agents'], c['dt'], c['law'], c['field_grid'],
+                              c['field_bounds'], c['interaction_radius'], c['profile_size'])
+
     # -- state -----------------------------------------------------------------------------
     def _reset_stream(self):
         n = len(self.agents)

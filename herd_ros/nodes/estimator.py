@@ -3,7 +3,8 @@
 Subscribes ``/herd/poses`` (PoseArray, one snapshot per herd-clock tick in ``agents`` order;
 a NaN pose = missing, its update skipped). Publishes ``/herd/model/params``
 (Float64MultiArray ``agent`` × ``param``, rows θ_i as in DESIGN.md: [damping, theta1..,
-theta2.., field_u.., field_v..], shared law [damping, profile.., field_u.., field_v..]),
+theta2.., field_u.., field_v..], shared law [damping, profile.., field_u.., field_v..]) and,
+latched, ``/herd/model/structure`` (how to read them: :mod:`herd_ros.model.model_structure`),
 ``/herd/model/noise`` (Q_i), ``/herd/model/prediction`` (one step ahead, eq. 8, stamped
 with the tick it predicts), ``/herd/model/markers`` (:mod:`herd_ros.nodes.model_markers`)
 and ``/diagnostics`` (per agent samples, residual RMS, whiteness, condition of P, skill
@@ -25,8 +26,8 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
@@ -62,11 +63,14 @@ class Estimator(Node):
             cfg['agents'], cfg['dt'], cfg['law'], cfg['field_grid'], cfg['field_bounds'],
             cfg['forgetting'], cfg['p0'], cfg['min_visits'], cfg['interaction_radius'],
             cfg['profile_size'], robust=bool(cfg['robust']))
-        self.counts = {'snapshots': 0, 'updates': 0, 'gaps': 0, 'backwards': 0,
-                       'sessions': 1}
+        self.counts = dict(snapshots=0, updates=0, gaps=0, backwards=0, sessions=1)
         self.clock_warning = ''
         self._resume()
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.create_publisher(String, '/herd/model/structure', latched).publish(
+            String(data=self.core.structure().to_json()))
         self.params_pub = self.create_publisher(Float64MultiArray, '/herd/model/params', 10)
         self.noise_pub = self.create_publisher(Float64MultiArray, '/herd/model/noise', 10)
         self.pred_pub = self.create_publisher(PoseArray, '/herd/model/prediction', 10)
@@ -103,10 +107,9 @@ class Estimator(Node):
 
     # -- start and stop --------------------------------------------------------------------
     def _resume(self):
-        path = self.cfg['checkpoint_path']
-        if not path:
-            return
         try:
+            if not (path := self.cfg['checkpoint_path']):
+                return
             if self.core.load_checkpoint(path):
                 self.get_logger().info(f'resumed from checkpoint {path} '
                                        f'({int(self.core.samples.max())} samples)')
@@ -118,7 +121,7 @@ class Estimator(Node):
     def write_checkpoint(self):
         try:
             self.core.save_checkpoint(self.cfg['checkpoint_path'])
-        except OSError as exc:
+        except OSError as exc:   # a full disk must not stop the learning
             self.get_logger().error(f'cannot write checkpoint: {exc}')
 
     def on_shutdown(self):

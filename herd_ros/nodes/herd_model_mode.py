@@ -6,7 +6,8 @@ parameters, subscriptions and the checks of each model adopted
 from __future__ import annotations
 
 import numpy as np
-from std_msgs.msg import Float64MultiArray
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray, String
 
 from herd_ros.control.damping import damping_check
 from herd_ros.control.fleet_observation import FleetObservation
@@ -15,7 +16,7 @@ from herd_ros.control.herd_follower import (HerdClockHold, HerdFollower, followe
                                             shared_model_from_parameter_matrix)
 from herd_ros.errors import HerdInputError
 from herd_ros.model.any_model import any_model_from_dict
-from herd_ros.model.model_file import check_agent_id
+from herd_ros.model.model_structure import ModelStructure
 from herd_ros.model.rbf_field import FieldGrid
 from herd_ros.nodes.ros_common import ParameterError, declare_parameters
 from herd_ros.params.controller import HERD_MODEL as HERD_MODEL_DEFAULTS
@@ -25,8 +26,10 @@ class HerdModelPolicy:
     """Mode ``herd_model``: each robot follows its assigned animal's learned law.
 
     Model from the ``model.*`` parameters (``--params-file model.yaml``) or, with
-    ``model_source: topic``, live from ``/herd/model/params`` (see
-    :func:`~herd_ros.control.herd_follower.model_from_parameter_matrix`).
+    ``model_source: topic``, live from ``/herd/model/params`` read with the estimator's
+    latched ``/herd/model/structure`` (agents, dt, law, field grid, profile: declared once,
+    by the estimator; see :func:`~herd_ros.control.herd_follower
+    .model_from_parameter_matrix`).
     """
 
     def __init__(self, node, p: dict):
@@ -52,8 +55,12 @@ class HerdModelPolicy:
                 node.get_logger().warning(warning)
             self.set_model(model)
         elif self.source == 'topic':
-            self._check_topic_parameters(p)
-            self.noise_cov = None
+            self.structure, self.noise_cov = None, None
+            self.status = 'waiting for /herd/model/structure (the estimator)'
+            latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            node.create_subscription(String, '/herd/model/structure', self.on_structure,
+                                     latched)
             node.create_subscription(Float64MultiArray, '/herd/model/params',
                                      self.on_params, 10)
             node.create_subscription(Float64MultiArray, '/herd/model/noise',
@@ -83,33 +90,24 @@ class HerdModelPolicy:
         except HerdInputError as exc:
             raise ParameterError(str(exc)) from None
 
-    def _check_topic_parameters(self, p):
+    def on_structure(self, msg: String):
+        """The estimator's model structure: how its parameter rows are read."""
         try:
-            self.agents = [check_agent_id(a) for a in p['agents']]
-            grid = [int(v) for v in p['field_grid']]
-            bounds = tuple(float(v) for v in p['field_bounds'])
-            if len(grid) != 2 or len(bounds) != 4:
-                raise HerdInputError('field_grid needs [nx, ny] and field_bounds '
-                                     '[xmin, xmax, ymin, ymax]')
-            self.grid = FieldGrid(grid[0], grid[1], bounds)
-        except HerdInputError as exc:
-            raise ParameterError(str(exc)) from None
-        if len(self.agents) < 2:
-            raise ParameterError('model_source topic needs agents (the estimator\'s agents, '
-                                 'in its order, at least two)')
-        self.dt = float(p['dt'])
-        if not self.dt > 0:
-            raise ParameterError(f'dt must be positive, got {p["dt"]!r}')
-        self.law = str(p['law'])
-        if self.law not in ('pairwise', 'shared'):
-            raise ParameterError(f'law must be pairwise or shared (the estimator\'s), got '
-                                 f'{self.law!r}')
-        self.radius = float(p['interaction_radius'])
-        self.profile_size = int(p['profile_size'])
-        if self.law == 'shared' and not (self.radius > 0 and self.profile_size >= 1):
-            raise ParameterError('the shared law needs interaction_radius > 0 and '
-                                 'profile_size >= 1 (the estimator\'s values)')
-        self._assignment(self.agents)   # validate now, not at the first message
+            structure = ModelStructure.from_json(msg.data)
+            self._assignment(list(structure.agents))
+        except (HerdInputError, ParameterError) as exc:
+            self.status = f'ignored the model structure: {exc}'
+            self.node.get_logger().warn(self.status, throttle_duration_sec=10.0)
+            return
+        if structure != self.structure:
+            self.structure = structure
+            self.grid = FieldGrid(*structure.field_grid, structure.field_bounds)
+            self.node.get_logger().info(
+                f'model structure: {len(structure.agents)} agents, dt {structure.dt:g} s, '
+                f'law {structure.law}, field grid {structure.field_grid[0]} x '
+                f'{structure.field_grid[1]}')
+            if self.follower is None:
+                self.status = 'waiting for a model'
 
     def _assignment(self, agents: list[str]) -> list[str]:
         n = len(self.robots)
@@ -155,24 +153,31 @@ class HerdModelPolicy:
                 raise HerdInputError(f'/herd/model/params: {data.size} numbers for '
                                      f'{rows} x {cols}')
             theta = data[:rows * cols].reshape(rows, cols)
+            st = self.structure
+            if st is None:
+                raise HerdInputError('/herd/model/params before /herd/model/structure: '
+                                     'ignored until the estimator\'s structure arrives')
+            if theta.shape != (len(st.agents), st.n_params):
+                raise HerdInputError(f'/herd/model/params is {rows} x {cols}, the structure '
+                                     f'says {len(st.agents)} x {st.n_params}')
             self.received += 1
             if self.received <= self.min_updates:
                 self.status = (f'warming up: model update {self.received} of '
                                f'{self.min_updates} ignored')
                 return
-            problem, warning = damping_check(theta[:, 0], self.agents)
+            problem, warning = damping_check(theta[:, 0], list(st.agents))
             if warning:
                 self.node.get_logger().warning(warning, throttle_duration_sec=60.0)
             if problem:
                 kept = 'keeping the previous model' if self.follower is not None else \
                     'robots hold still until a model is accepted'
                 raise HerdInputError(f'/herd/model/params refused: {problem}; {kept}')
-            if self.law == 'shared':
+            if st.law == 'shared':
                 model = shared_model_from_parameter_matrix(
-                    theta, self.agents, self.dt, self.grid, self.radius, self.profile_size,
-                    self.noise_cov)
+                    theta, list(st.agents), st.dt, self.grid, st.interaction_radius,
+                    st.profile_size, self.noise_cov)
             else:
-                model = model_from_parameter_matrix(theta, self.agents, self.dt, self.grid,
+                model = model_from_parameter_matrix(theta, list(st.agents), st.dt, self.grid,
                                                     self.noise_cov)
             self.set_model(model)
         except (HerdInputError, ParameterError) as exc:
@@ -183,7 +188,9 @@ class HerdModelPolicy:
     def on_noise(self, msg: Float64MultiArray):
         """Q_i of every agent from ``/herd/model/noise`` (agent × [qxx, qxy, qyx, qyy])."""
         data = np.asarray(msg.data, dtype=float)
-        n = len(self.agents)
+        if self.structure is None:
+            return
+        n = len(self.structure.agents)
         if data.size != 4 * n or not np.isfinite(data).all():
             self.node.get_logger().warn(f'/herd/model/noise: expected {4 * n} finite numbers, '
                                         f'got {data.size}', throttle_duration_sec=10.0)

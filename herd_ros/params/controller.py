@@ -179,12 +179,12 @@ HERD_MODEL = {
              '--params-file;\n'
              '  topic - live from /herd/model/params (estimator, '
              'Float64MultiArray agent x param, rows\n'
-             '          [damping, theta1.., theta2.., field_u.., field_v..]). '
-             'The topic carries only\n'
-             "          numbers, so give the estimator's agents (same order), "
-             'dt, field_grid and\n'
-             '          field_bounds: the field is on every centre of that grid '
-             '(no pruning),\n'
+             '          [damping, theta1.., theta2.., field_u.., field_v..]), read '
+             'with the estimator\'s\n'
+             '          latched /herd/model/structure (its agents, dt, law, field '
+             'grid, profile: the\n'
+             '          controller declares none of them). The field is on every '
+             'centre of the grid,\n'
              '          sigma = 2/3 of the grid spacing, neighbours = the other '
              'agents in order.\n'
              '          Q_i for the noise comes from /herd/model/noise.\n'
@@ -202,34 +202,6 @@ HERD_MODEL = {
         doc=("topic only: ignore the first N model updates (an estimator's "
              'first estimates are poor;\n'
              'robots hold still until a model is accepted).')),
-    'agents': Param(
-        [],
-        "topic: the estimator's agents, in order",
-        example=['cow_1', 'cow_2', 'cow_3'],
-        commented=True),
-    'dt': Param(
-        1.0,
-        "topic: the estimator's clock step (s)",
-        range=(1e-06, 1000000000.0)),
-    'field_grid': Param(
-        [6, 6],
-        "topic: the estimator's field grid [nx, ny]"),
-    'field_bounds': Param(
-        [-150.0, 150.0, -150.0, 150.0],
-        "topic: the estimator's field bounds [xmin, xmax, ymin, ymax]"),
-    'law': Param(
-        'pairwise',
-        "topic: the estimator's law",
-        choices=('pairwise', 'shared'),
-        doc="topic only: the estimator's law, and for the shared law its radius and profile size."),
-    'interaction_radius': Param(
-        60.0,
-        "topic, shared law: the estimator's radius (m)",
-        range=(1e-06, 1000000000.0)),
-    'profile_size': Param(
-        6,
-        "topic, shared law: the estimator's profile size",
-        range=(1, 1000)),
 }
 
 FLOCKING = {
