@@ -263,3 +263,10 @@ def test_a_replay_started_over_is_a_new_session(ros, herd, console_script, tmp_p
     assert 'a new session' in err + out, err
     assert (tmp_path / 'estimator.ckpt.session-1.npz').is_file()    # set aside, not deleted
     assert 'Traceback' not in err, err
+    # the checkpoint says which recording it learned from: the first run's data time
+    import json
+    with np.load(tmp_path / 'estimator.ckpt.session-1.npz') as z:
+        session = json.loads(str(z['session']))
+    assert session['first_time'] == pytest.approx(run.times[0])
+    assert session['last_time'] == pytest.approx(run.times[n - 1])
+    assert 'resumed from checkpoint' in err + out and 'data time' in err + out

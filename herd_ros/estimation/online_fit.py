@@ -240,6 +240,9 @@ class OnlineHerdEstimator:
         self.prev_residual = np.full((n, 2), np.nan)
         # prequential skill: Σ squared one-step position errors (m²) of the model (predicted
         # before the update), constant velocity and stay-put, and their count
+        # the session: the herd (agents, in config) and the stretch of data time learned
+        # from — which recording this state belongs to (checkpoints carry it)
+        self.session = {'first_time': None, 'last_time': None, 'snapshots': 0}
         self.skill_sq = np.zeros((3, n))
         self.skill_n = np.zeros(n)
 
@@ -271,10 +274,14 @@ class OnlineHerdEstimator:
         if p.shape != (len(self.agents), 2):
             raise HerdInputError(f'snapshot has shape {p.shape}, expected '
                                  f'({len(self.agents)}, 2) in agents order')
+        sess = self.session
         if self.buffer_times:
             step = t - self.buffer_times[-1]
             if step <= 0:
                 return SnapshotResult('backwards', step=step)
+        sess['first_time'] = t if sess['first_time'] is None else sess['first_time']
+        sess['last_time'], sess['snapshots'] = t, sess['snapshots'] + 1
+        if self.buffer_times:
             if abs(step - self.dt) > STEP_TOLERANCE * self.dt:
                 self.break_chain()
                 self._push(t, p)
@@ -493,7 +500,8 @@ class OnlineHerdEstimator:
                       stat_lag=self.stat_lag, stat_var=self.stat_var,
                       stat_pairs=self.stat_pairs, prev_residual=self.prev_residual,
                       skill_sq=self.skill_sq, skill_n=self.skill_n,
-                      config=np.array(json.dumps(self.config)))
+                      config=np.array(json.dumps(self.config)),
+                      session=np.array(json.dumps(self.session)))
         return arrays
 
     def save_checkpoint(self, path) -> Path:
@@ -529,7 +537,19 @@ class OnlineHerdEstimator:
         for key in ('skill_sq', 'skill_n'):        # absent from older checkpoints
             if key in data:
                 setattr(self, key, np.array(data[key]))
+        if 'session' in data:
+            self.session = json.loads(str(data['session']))
         return True
+
+    def describe_session(self) -> str:
+        """The herd and the stretch of data time this state was learned from."""
+        s = self.session
+        if s['first_time'] is None:
+            return f'herd of {len(self.agents)} ({", ".join(self.agents[:3])}' + (
+                ', ...)' if len(self.agents) > 3 else ')') + ', no data yet'
+        return (f'herd of {len(self.agents)} ({", ".join(self.agents[:3])}'
+                + (', ...' if len(self.agents) > 3 else '') + f'), data time '
+                f'{s["first_time"]:.3f} to {s["last_time"]:.3f} s, {s["snapshots"]} snapshots')
 
 
 # -- offline driver: `herd-ros fit --online` ------------------------------------------------

@@ -35,11 +35,10 @@ from herd_ros.errors import HerdInputError
 from herd_ros.estimation.online_fit import OnlineHerdEstimator
 from herd_ros.estimation.online_status import agent_statuses, herd_skill
 from herd_ros.estimation.sessions import set_aside
-from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters,
-                                       data_path, declare_parameters,
+from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, data_path, declare_parameters,
                                        describe_remaining_parameters, diagnostic_array,
-                                       diagnostic_status, exit_process, run_node, seconds_to_stamp,
-                                       stamp_to_seconds, wall_timer)
+                                       diagnostic_status, exit_process, run_node,
+                                       seconds_to_stamp, stamp_to_seconds, wall_timer)
 from herd_ros.nodes.model_markers import model_markers, pose_at
 from herd_ros.params.estimator import PARAMS as DEFAULTS, check, forgetting_problem
 
@@ -111,8 +110,8 @@ class Estimator(Node):
             if not (path := self.cfg['checkpoint_path']):
                 return
             if self.core.load_checkpoint(path):
-                self.get_logger().info(f'resumed from checkpoint {path} '
-                                       f'({int(self.core.samples.max())} samples)')
+                self.get_logger().info(f'resumed from checkpoint {path}: '
+                                       f'{self.core.describe_session()}')
             else:
                 self.get_logger().info(f'no checkpoint at {path}: starting afresh')
         except HerdInputError as exc:
@@ -166,12 +165,13 @@ class Estimator(Node):
     def _new_session(self, t: float, back: float):
         """Data time went back by more than ``new_session_after_s``: a new session (a resume
         after a crash continues the data, so it never lands here)."""
-        aside = set_aside(self.cfg['checkpoint_path'])
+        self.cfg['checkpoint_path'] and self.write_checkpoint()   # the old session, as learned
+        aside, learned = set_aside(self.cfg['checkpoint_path']), self.core.describe_session()
         self.core.reset()
         self.counts['sessions'] += 1
         self.get_logger().info(
             f'data time went back {back:.0f} s (to {t:.3f}): a new session, learning afresh'
-            + (f'; the previous checkpoint is kept as {aside}' if aside else ''))
+            + (f'; the previous one ({learned}) is kept as {aside}' if aside else ''))
 
     def _warn(self, text: str):
         self.clock_warning = text
