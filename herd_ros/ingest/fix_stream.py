@@ -10,14 +10,15 @@ arrival order) and keeps everything the node used to hold itself:
   then and released in stamp order, so the datum does not depend on arrival order and a
   NO_FIX or NaN fix never becomes it;
 * **the stamp guard**: a fix stamped more than ``max_stamp_ahead_s`` ahead of ``now`` (the
-  caller's wall clock) is rejected as ``future`` — :func:`future_stamps`, which the offline
-  path applies to a file with the time of the run;
+  caller's wall clock) is rejected as ``future`` (:mod:`~herd_ros.ingest.stamp_guards`,
+  which the offline path applies to a file with the time of the run);
 * **the filters**: the compiled :class:`~herd_ros.ingest.collar_bank.CollarBank`, with the
   per-collar motion refits of :func:`~herd_ros.ingest.motion_refit.process_with_refits` when
   ``refit`` is given — the offline path's numerics;
 * **the herd clock** (:class:`~herd_ros.ingest.herd_clock.BatchHerdClock`, data time): a
   forward jump of data time beyond ``max_clock_jump_s`` restarts it at the new time instead
-  of emitting every tick of the gap (:func:`clock_jumps`);
+  of emitting every tick of the gap (offline: the clock spans the accepted fixes, and a
+  gap too long for one clock is a clear error);
 * the bookkeeping diagnostics report: why each collar's last fix was refused, counts of
   future stamps, restarts and ticks.
 
@@ -39,6 +40,7 @@ from herd_ros.ingest.geodesy import geodetic_to_enu
 from herd_ros.ingest.herd_clock import BatchHerdClock
 from herd_ros.ingest.motion_refit import MotionRefitter, fix_variance, process_with_refits
 from herd_ros.ingest.pipeline import choose_datum, with_walk
+from herd_ros.ingest.stamp_guards import clock_jumps, future_stamps
 from herd_ros.io.cdr import NavSatFixes, concat_fixes, no_fixes, take_fixes
 
 #: what a rejection means, for diagnostics and logs
@@ -51,23 +53,6 @@ REJECTION_TEXT = {
     'gate': 'outside the Mahalanobis gate',
     'unconfirmed': 'track lost or not started: waiting for consistent fixes',
 }
-
-
-def future_stamps(stamp: np.ndarray, now: float, max_ahead: float) -> np.ndarray:
-    """Mask of stamps more than ``max_ahead`` s after ``now``: one wrong stamp must not
-    drag the herd clock into the future."""
-    return np.asarray(stamp, float) > now + max_ahead
-
-
-def clock_jumps(herd_time: float, stamp: np.ndarray, max_jump: float) -> tuple[list, np.ndarray]:
-    """(indices where data time jumps forward by more than ``max_jump`` s, the latest time
-    before each fix): the herd clock restarts at those fixes (``herd_time`` = the clock's
-    latest time before the batch)."""
-    finite = np.where(np.isfinite(stamp), stamp, -np.inf)
-    before = np.maximum.accumulate(np.r_[herd_time, finite])[:-1]
-    seen = np.isfinite(before)
-    jumps = np.flatnonzero(seen & (finite > np.where(seen, before, 0.0) + max_jump)).tolist()
-    return jumps, before
 
 
 @dataclasses.dataclass

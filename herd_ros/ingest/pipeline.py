@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time as _time
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,6 +41,7 @@ from herd_ros.ingest.geodesy import geodetic_to_enu
 from herd_ros.ingest import collar_bank
 from herd_ros.ingest.herd_clock import (StateTimeline, TimelineRecorder, resample_timelines,
                                         tick_grid)
+from herd_ros.ingest.stamp_guards import MAX_STAMP_AHEAD_S, future_stamps
 from herd_ros.io.gps_files import normalise_fixes, read_fix_file, sniff_format
 from herd_ros.trajectory import HerdTrajectory
 
@@ -400,6 +402,8 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
                           *, agents=None, trim: bool = True, progress: bool = False,
                           fir_taps: int = 30, fir_sigma: float = 6.0, lag: int = 3,
                           engine: str = 'bank', motion_model: str = 'auto',
+                          now: float | None = None,
+                          max_stamp_ahead_s: float = MAX_STAMP_AHEAD_S,
                           **filter_params) -> HerdTrajectory:
     """Filtered, synchronized herd trajectory from a fixes table.
 
@@ -425,6 +429,10 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
             configured model is the prior and the walk component); ``'fixed'``: one model
             for all, ``accel_std``/``velocity_tau``; ``'auto'`` (default): ``'fit'``
             unless ``accel_std`` or ``velocity_tau`` is given.
+        now, max_stamp_ahead_s: a fix stamped more than ``max_stamp_ahead_s`` after ``now``
+            (default: the wall clock) is rejected (outcome ``future``, counter
+            ``rejected_future``), as ``gps_ingest`` does (:mod:`~herd_ros.ingest
+            .stamp_guards`).
         **filter_params: :class:`FilterParams` fields (accel_std, default_position_std,
             gate_probability, max_speed, stale_after, ...); None or absent
             ``stale_after`` and ``reinit_after_gap`` come from the data
@@ -453,6 +461,14 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
         if unknown:
             raise HerdInputError(f'agent(s) {", ".join(unknown)} have no fixes')
         fixes = fixes[fixes['agent'].isin(agents)].reset_index(drop=True)
+    future = future_stamps(fixes['time'].to_numpy(float),
+                           _time.time() if now is None else float(now), max_stamp_ahead_s)
+    all_fixes = fixes
+    if future.any():
+        fixes = fixes[~future].reset_index(drop=True)
+        if fixes.empty:
+            raise HerdInputError(f'every fix is stamped more than {max_stamp_ahead_s:g} s after '
+                                 f'the wall clock (the first at {all_fixes["time"].min():.3f})')
     if dt is None:
         dt = auto_dt(fixes)
     params = FilterParams(**auto_filter_params(fixes, **filter_params))
@@ -478,9 +494,7 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     if empty:
         raise HerdInputError(f'agent(s) {", ".join(empty)} have no usable fix (all rejected: '
                              + '; '.join(f'{a}: {_summary(counters[a])}' for a in empty) + ')')
-    stamps = fixes['time'].to_numpy(float)
-    stamps = stamps[np.isfinite(stamps)]
-    ticks = tick_grid(stamps.min(), stamps.max(), dt)
+    ticks = clock_ticks(fixes, timelines, dt, trim)
     traj = resample_timelines(timelines, ticks, agents)
     lead = trail = 0
     if trim:
@@ -507,6 +521,13 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
                                  'trim=True')
         traj.positions = gaussian_fir(traj.positions, fir_taps, fir_sigma)
     traj.meta['raw_fixes'] = raw_fixes_by_agent(fixes, datum, agents, enu)
+    if future.any():
+        full = np.full(len(all_fixes), 'future', dtype=object)
+        full[~future] = reasons
+        reasons = full
+        late = all_fixes.loc[future, 'agent'].value_counts()
+        for a in counters:
+            counters[a]['rejected_future'] = int(late.get(a, 0))
     traj.meta.update({'datum': datum, 'dt': float(dt), 'counters': counters,
                       'smoother': smoother,
                       'filter_params': params, 'trimmed': (lead, trail),
@@ -514,6 +535,32 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
                       'timelines': timelines,
                       'fix_outcomes': reasons})
     return traj
+
+
+#: most ticks × collars one herd clock may hold (8 bytes × 2 coordinates each: 3.2 GB)
+MAX_CLOCK_CELLS = 2e8
+
+
+def clock_ticks(fixes: pd.DataFrame, timelines: dict, dt: float, trim: bool) -> np.ndarray:
+    """The herd clock's ticks: over the union of the collars' spans — of their accepted
+    fixes when ``trim`` (a rejected fix stamped decades off, a collar's boot stamp 0, never
+    stretches the clock), else of every stamp. A clock too long to hold (more than
+    :data:`MAX_CLOCK_CELLS` ticks × collars: data time that jumps by years) is a
+    :class:`HerdInputError` naming the largest jump, where the live node restarts its clock.
+    """
+    if trim:
+        stamps = np.concatenate([np.asarray(tl.t, float) for tl in timelines.values()])
+    else:
+        stamps = fixes['time'].to_numpy(float)
+    stamps = np.sort(stamps[np.isfinite(stamps)])
+    cells = (stamps[-1] - stamps[0]) / dt * max(len(timelines), 1)
+    if cells > MAX_CLOCK_CELLS:
+        k = int(np.argmax(np.diff(stamps))) if len(stamps) > 1 else 0
+        raise HerdInputError(f'data time spans {stamps[-1] - stamps[0]:.0f} s, too long for '
+                             f'one herd clock at dt {dt:g} s; its largest jump is from '
+                             f'{stamps[k]:.3f} to {stamps[min(k + 1, len(stamps) - 1)]:.3f} s '
+                             f'(a wrong stamp, or two recordings: split the file)')
+    return tick_grid(stamps[0], stamps[-1], dt)
 
 
 def raw_fixes_by_agent(fixes: pd.DataFrame, datum, agents, enu=None) -> dict:
@@ -565,7 +612,8 @@ def format_counters(counters: dict, spans: dict | None = None) -> str:
     """A small table of per-agent counters (rows: agents, columns: :data:`COUNTERS`), with
     each agent's span on the clock (:func:`collar_spans`: from, to in hours, ticks with a
     position) when ``spans`` is given."""
-    names = list(COUNTERS)
+    names = list(COUNTERS) + (['rejected_future'] if any(
+        c.get('rejected_future') for c in counters.values()) else [])
     short = [c.replace('rejected_', '') for c in names]
     width = max([len('agent')] + [len(a) for a in counters])
     extra = ['from_h', 'to_h', 'ticks'] if spans is not None else []
