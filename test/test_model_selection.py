@@ -218,3 +218,22 @@ def test_on_real_herds_the_long_run_terms_make_the_simulated_herd_move_like_the_
         got = np.nanmean([robots[a][k] for a in model.agents])
         print(name, k, round(got, 4), 'vs', round(want, 4), f'{100 * (got / want - 1):+.0f} %')
         assert abs(got / want - 1) < 0.30, (name, k, got, want)
+
+
+def test_held_out_samples_outside_the_training_region_are_not_scored():
+    """Issue 26: a held-out block that leaves the region the other blocks cover would judge
+    every candidate on extrapolation. Agent 0 spends its last block in a far corner no
+    other block visits: exactly those samples go unscored; everything else is scored."""
+    from herd_ros.estimation.model_selection import select_model
+    rng = np.random.default_rng(3)
+    T, folds = 1002, 10
+    p = np.empty((T, 2, 2))
+    p[:, 0] = 2.0 + 0.5 * rng.random((T, 2))        # both in one 12.5 m cell ...
+    p[:, 1] = 2.0 + 0.5 * rng.random((T, 2))
+    edges = np.linspace(0, T - 2, folds + 1).astype(int)
+    p[edges[-2]:, 0] += 90.0                         # ... but agent 0's last block
+    sel = select_model([p], ['a', 'b'], 1.0, grids=[(8, 8)], folds=folds,
+                       bounds=(0.0, 100.0, 0.0, 100.0), memories=())
+    assert sel.outside_region == edges[-1] - edges[-2]
+    assert sel.samples == 2 * (T - 2) - sel.outside_region
+    assert sel.as_dict()['held_out_samples']['outside_training_region'] == sel.outside_region

@@ -251,8 +251,10 @@ def _print_selection(selection, dt, rows: int = 8):
         shown.append(chosen)
     law = f', interactions: {selection.law} law' if any(
         r['structure'].interactions for r in table) else ''
+    outside = (f'; {selection.outside_region} held-out samples outside the region the other '
+               f'blocks cover not scored' if selection.outside_region else '')
     print(f'model selection: blocked cross-validation on the training data ({selection.folds} '
-          f'blocks per run, {selection.samples} samples{law}); one-step RMS (m)')
+          f'blocks per run, {selection.samples} samples{law}{outside}); one-step RMS (m)')
     print(f'  {"candidate":<44} {"params/agent":>12} {"CV RMS":>9}')
     for r in shown:
         mark = '  <- chosen (simplest within 1 SE of the best)' \

@@ -35,7 +35,12 @@ without block b and its held-out error are small solves:
     SSE_b = s_b − 2 θ_−bᵀ c_b + θ_−bᵀ G_b θ_−b
 
 (one-step position error = Δt × velocity error). Constant velocity (θ = [1, 0…]) and stay-put
-(θ = 0) are scored on the same blocks.
+(θ = 0) are scored on the same blocks. A block is **scored** only on its samples inside the
+region the other blocks cover (cells of the finest field grid tried where they put the agent
+at least ``min_visits`` times): s_b, c_b, G_b of the scoring are those samples' (the fit
+without the block still leaves all of it out). A block that leaves the training region
+would otherwise judge every candidate on extrapolation — a field where nothing identifies
+it — and steer the choice (of a ridge, of the field) by it.
 
 **Choice: the one-standard-error rule** (Hastie, Tibshirani & Friedman, *The Elements of
 Statistical Learning*, 2nd ed., §7.10): the simplest candidate (fewest parameters) whose CV
@@ -123,6 +128,7 @@ class Selection:
     samples: int = 0
     own_agents: list = field(default_factory=list)      # distinguished agents (shared law)
     own_profile: DistanceProfile | None = None          # their profile ψ'
+    outside_region: int = 0     # held-out samples not scored: outside the training region
 
     def as_dict(self) -> dict:
         """Plain types, for the model file and summary.json."""
@@ -136,6 +142,8 @@ class Selection:
                                 else float(c.memory)),
             'own_profile_agents': list(self.own_agents) if c.interactions else [],
             'field_bounds': [float(b) for b in self.bounds],
+            'held_out_samples': {'scored': int(self.samples),
+                                 'outside_training_region': int(self.outside_region)},
             'cv_rms': {'selected': float(self._row(c)['rms']),
                        'constant_velocity': float(self.baselines['constant_velocity']),
                        'stay_put': float(self.baselines['stay_put'])},
@@ -232,7 +240,7 @@ def _sample_mask(p: np.ndarray, i: int) -> np.ndarray:
 def _with_memory(stats, A_x, A_y, F, y_x, y_y, ubar):
     """:func:`_stats` with the damping column replaced by ``ubar`` (M, 2), from the stats of
     the same samples: only row/column 0 of G and c[0] change (O(M·p), not O(M·p²))."""
-    G, c, s, m = stats
+    G, c, s, m = stats[:4]
     ux, uy = ubar[:, 0], ubar[:, 1]
     row = np.concatenate([ux @ A_x + uy @ A_y, F.T @ ux, F.T @ uy])
     row[0] = ux @ ux + uy @ uy
@@ -371,13 +379,31 @@ def screen_for_driver(runs_positions, agents: list[str], dt: float, profile: Dis
     return (k, float(score[k])) if score[k] > 0 else None
 
 
+def region_cells(where: np.ndarray, region: FieldGrid) -> np.ndarray:
+    """Index of the cell of ``region`` holding each point (M,) (points outside the bounds
+    fall in the nearest edge cell)."""
+    lo_x, hi_x, lo_y, hi_y = region.bounds
+    ix = np.clip(((where[:, 0] - lo_x) / (hi_x - lo_x) * region.nx).astype(int), 0,
+                 region.nx - 1)
+    iy = np.clip(((where[:, 1] - lo_y) / (hi_y - lo_y) * region.ny).astype(int), 0,
+                 region.ny - 1)
+    return iy * region.nx + ix
+
+
 def _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds, min_visits,
                       folds, own=(), own_profile=None, progress=None, memory=1.0,
-                      memories=None):
+                      memories=None, region=None):
     """Per agent: its field bases per grid and, per design, the sufficient statistics of
-    every block (:func:`_stats`; None for a block without samples), for velocity memory
-    ``memory``; with ``memories``, a dict {κ: that list} for each κ of them instead (the
-    samples are formed once, only the damping column changes: :func:`_with_memory`)."""
+    every block (None for a block without samples), for velocity memory ``memory``; with
+    ``memories``, a dict {κ: that list} for each κ of them instead (the samples are formed
+    once, only the damping column changes: :func:`_with_memory`).
+
+    A block's statistics are (G, c, s, m) of all its samples (what the fits without it
+    leave out) followed by (G, c, s, m) of those it is **scored** on: with ``region`` (a
+    :class:`FieldGrid`), only the samples in cells where the *other* blocks put the agent
+    at least ``min_visits`` times — a held-out block that leaves the training region would
+    judge every candidate on extrapolation (a field where no data identify it), not on how
+    the herd moves."""
     kappas = [memory] if memories is None else list(memories)
     out = {k: [] for k in kappas}
     for i, a in enumerate(agents):
@@ -389,7 +415,7 @@ def _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds,
             visited = np.concatenate([p[:-2, i] for p in runs_positions if len(p) >= 3])
             visited = visited[np.isfinite(visited).all(-1)]
             bases[g] = RbfBasis.from_grid(grid, visited, min_visits)
-        blocks = {k: {g: [] for g in designs} for k in kappas}
+        entries = []       # per block: (samples, memory velocities) or None
         for p in runs_positions:
             T = p.shape[0]
             if T < 3:
@@ -398,26 +424,56 @@ def _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds,
             for b0, b1 in zip(edges[:-1], edges[1:]):
                 q = p[b0:b1 + 2]
                 smp = agent_samples(q, i, dt, law, profile, own, own_profile, memory)
+                ubars = None
                 if smp is not None and memories is not None:
                     u = velocities(q[:, i:i + 1], dt)
                     ok = _sample_mask(q, i)
                     ubars = {k: memory_velocities(u, k)[:-1, 0][ok] for k in kappas}
-                for g in designs:
-                    if smp is None:
-                        for k in kappas:
-                            blocks[k][g].append(None)
-                        continue
-                    A_x, A_y, y_x, y_y, where = smp
-                    F = bases[g].features(where) if g is not None else np.zeros((len(y_x), 0))
-                    st = _stats(A_x, A_y, F, y_x, y_y)
+                entries.append(None if smp is None else (smp, ubars))
+        outside = _outside_training_region(entries, region, min_visits)
+        blocks = {k: {g: [] for g in designs} for k in kappas}
+        for e, out_b in zip(entries, outside):
+            for g in designs:
+                if e is None:
                     for k in kappas:
-                        blocks[k][g].append(st if memories is None else
-                                            _with_memory(st, A_x, A_y, F, y_x, y_y, ubars[k]))
+                        blocks[k][g].append(None)
+                    continue
+                (A_x, A_y, y_x, y_y, where), ubars = e
+                F = bases[g].features(where) if g is not None else np.zeros((len(y_x), 0))
+                for k in kappas:
+                    def stats_of(mask=None):
+                        sub = (slice(None) if mask is None else mask)
+                        st = _stats(A_x[sub], A_y[sub], F[sub], y_x[sub], y_y[sub])
+                        if memories is None:
+                            return st
+                        return _with_memory(st, A_x[sub], A_y[sub], F[sub], y_x[sub],
+                                            y_y[sub], ubars[k][sub])
+                    full = stats_of()
+                    if not out_b.any():
+                        scored = full
+                    else:
+                        gone = stats_of(out_b)
+                        scored = (full[0] - gone[0], full[1] - gone[1], full[2] - gone[2],
+                                  full[3] - gone[3])
+                    blocks[k][g].append(full + scored)
         for k in kappas:
             out[k].append((bases, blocks[k]))
         if progress is not None:
             progress(a)
     return out[memory] if memories is None else out
+
+
+def _outside_training_region(entries, region, min_visits) -> list:
+    """Per block: which of its samples lie in cells of ``region`` that the other blocks
+    visited fewer than ``min_visits`` times (all False without a region)."""
+    if region is None:
+        return [np.zeros(0 if e is None else len(e[0][2]), bool) for e in entries]
+    cells = [None if e is None else region_cells(e[0][4], region) for e in entries]
+    size = region.nx * region.ny
+    counts = [np.zeros(size) if c is None else np.bincount(c, minlength=size) for c in cells]
+    total = sum(counts)
+    return [np.zeros(0, bool) if c is None else (total - n)[c] < min_visits
+            for c, n in zip(cells, counts)]
 
 
 def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float, *,
@@ -481,6 +537,10 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
     want_field = any('field' in t for t in terms)
     field_grid_list = grids if want_field else []
     designs = [None] + field_grid_list           # None: no field columns
+    # held-out samples are scored only inside the region the other blocks cover, on the
+    # finest field grid tried (the field that would extrapolate furthest)
+    region = (FieldGrid(*max(field_grid_list, key=lambda g: g[0] * g[1]), tuple(bounds))
+              if field_grid_list else None)
     def candidates_of(names, prof, pass_terms, pass_grids):
         out = []
         for t in pass_terms:
@@ -513,12 +573,13 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
                                  ].astype(int)
                     n_params[s] = n_params.get(s, 0) + len(cols) / n
                     for k in live:
-                        G_b, c_b, s_b, _ = stats[k]
+                        G_b, c_b = stats[k][:2]            # all of the block: left out
+                        Gs, cs, ss = stats[k][4:7]         # its samples scored
                         Gt = (G_tot - G_b)[np.ix_(cols, cols)]
                         ct = (c_tot - c_b)[cols]
                         theta = _solve(Gt, ct, s.ridge)
-                        Gb = G_b[np.ix_(cols, cols)]
-                        e = max(s_b - 2 * theta @ c_b[cols] + theta @ Gb @ theta, 0.0)
+                        e = max(ss - 2 * theta @ cs[cols]
+                                + theta @ Gs[np.ix_(cols, cols)] @ theta, 0.0)
                         sse[s][k] += e
                         if by_agent is not None:
                             by_agent.setdefault(s, np.zeros((n, n_blocks)))[i, k] += e
@@ -532,22 +593,24 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
     if memory == 1.0:
         base_stats = plain_stats = _block_statistics(
             runs_positions, agents, dt, law, profile, designs, bounds, min_visits, folds, own,
-            own_profile, progress=progress)
+            own_profile, progress=progress, region=region)
     else:
         both = _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds,
                                  min_visits, folds, own, own_profile, progress=progress,
-                                 memories=[1.0, memory])
+                                 memories=[1.0, memory], region=region)
         base_stats, plain_stats = both[memory], both[1.0]
     n_blocks = len(base_stats[0][1][None])
     # per block: SSE (summed over agents) and sample count, per candidate and baselines
     sse = {s: np.zeros(n_blocks) for s in candidates}
     base = {'constant_velocity': np.zeros(n_blocks), 'stay_put': np.zeros(n_blocks)}
     count = np.zeros(n_blocks)
+    outside = np.zeros(n_blocks)       # held-out samples outside the training region
     n_params = {}
     for bases, blocks in plain_stats:
         for k, st in enumerate(blocks[None]):
             if st is not None:
-                G_b, c_b, s_b, m_b = st
+                G_b, c_b, s_b, m_b = st[4:]           # the samples scored
+                outside[k] += st[3] - m_b
                 base['stay_put'][k] += s_b
                 base['constant_velocity'][k] += s_b - 2 * c_b[0] + G_b[0, 0]
                 count[k] += m_b
@@ -570,7 +633,7 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
                 sse[s] = np.zeros(n_blocks)
             stats2 = _block_statistics(runs_positions, agents, dt, law, profile,
                                        [None] + grids2, bounds, min_visits, folds, [k], prof,
-                                       progress=progress, memory=memory)
+                                       progress=progress, memory=memory, region=region)
             score(stats2, group, [None] + grids2)
             candidates += group
     used = count > 0
@@ -584,7 +647,8 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
         kappas = [memory] + memories
         stats3 = _block_statistics(runs_positions, agents, dt, law, profile, design, bounds,
                                    min_visits, folds, own_k, chosen.own_profile,
-                                   progress=progress, memory=memory, memories=kappas)
+                                   progress=progress, memory=memory, memories=kappas,
+                                   region=region)
         by_agent = {}
         variants = []
         for kappa in kappas:
@@ -610,6 +674,7 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
     total = count[used].sum()
     sel = Selection(law=law, profile=profile, bounds=tuple(float(b) for b in bounds),
                     table=table, folds=folds, samples=int(total),
+                    outside_region=int(outside.sum()),
                     baselines={m: dt * float(np.sqrt(v[used].sum() / total))
                                for m, v in base.items()},
                     own_agents=list(chosen.own), own_profile=chosen.own_profile)
