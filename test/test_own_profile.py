@@ -9,7 +9,7 @@ from herd_ros.cli.main import main
 from herd_ros.control.herd_follower import robot_shared_model
 from herd_ros.estimation.herd_fit import aligned_positions, fit_structure, split_runs
 from herd_ros.estimation.model_selection import shared_columns, select_model
-from herd_ros.model.any_model import load_any_model
+from herd_ros.model.kinds import load as load_any_model
 from herd_ros.model.rbf_field import RbfBasis
 from herd_ros.model.shared_law import (DistanceProfile, interaction_features, own_features,
                                        save_shared_model, shared_rows)

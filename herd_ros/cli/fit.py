@@ -15,8 +15,8 @@ from herd_ros.estimation.model_selection import (FIELD_CELLS, FOLDS, MEMORIES,
                                                  PAIRWISE_MAX_AGENTS,
                                                  RIDGES, TERMS, select_model)
 from herd_ros.estimation.validation import skill_lines, validate
-from herd_ros.model.model_file import save_model, selection_entry
-from herd_ros.model.shared_law import save_shared_model
+from herd_ros.model import kinds
+from herd_ros.model.model_file import selection_entry
 from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS
 from herd_ros.model.velocity_memory import check_memory
 
@@ -172,10 +172,7 @@ def run(args) -> int:
     chosen = selection.as_dict()
     chosen['loss'] = args.loss
     fit = _long_run_terms(fit, train, args, chosen)
-    if hasattr(fit.model, 'laws'):
-        save_model(fit.model, args.output, selection=selection_entry(chosen))
-    else:
-        save_shared_model(fit.model, args.output, selection=selection_entry(chosen))
+    kinds.save(fit.model, args.output, selection=selection_entry(chosen))
     summary = validate(fit, train, test, seed=args.seed)
     summary['selection'] = chosen
     _print_selection(selection, train[0].dt)

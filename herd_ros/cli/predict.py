@@ -15,7 +15,7 @@ import pandas as pd
 
 from herd_ros.data_sources import is_trajectory_csv, load_runs
 from herd_ros.errors import HerdInputError
-from herd_ros.model.any_model import load_any_model
+from herd_ros.model import kinds
 from herd_ros.model.model_file import write_atomic
 from herd_ros.simulation.prediction import (CHI2_2_90, noise_level, predict_ahead,
                                             prediction_covariance)
@@ -55,7 +55,7 @@ def _runs_for(model, path):
 def run(args) -> int:
     if args.steps < 1:
         raise HerdInputError(f'--steps must be at least 1, got {args.steps}')
-    model = load_any_model(args.model)
+    model = kinds.load(args.model)
     cov = prediction_covariance(model, args.steps)                  # (N, 2, 2)
     runs = _runs_for(model, args.data)
     frames = []

@@ -9,7 +9,7 @@ import numpy as np
 from herd_ros.data_sources import load_runs
 from herd_ros.estimation.herd_fit import HerdFit
 from herd_ros.estimation.validation import skill_lines, validate
-from herd_ros.model.any_model import load_any_model
+from herd_ros.model import kinds
 from herd_ros.model.rbf_field import FieldGrid
 
 HELP = 'figures (paper Figs. 2-6) and summary.json of a model file on a data file'
@@ -25,7 +25,7 @@ def add_arguments(p):
 
 def run(args) -> int:
     from herd_ros.report.fit_figures import write_fit_figures
-    model = load_any_model(args.model)
+    model = kinds.load(args.model)
     runs, _ = load_runs(args.data, dt=args.dt or model.dt)
     pts = np.concatenate([r.positions.reshape(-1, 2) for r in runs])
     grid = FieldGrid.over(pts[np.isfinite(pts).all(-1)], 8, 8)

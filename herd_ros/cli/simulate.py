@@ -6,7 +6,7 @@ import numpy as np
 from herd_ros.cli.common import progress
 from herd_ros.data_sources import load_runs
 from herd_ros.errors import HerdInputError
-from herd_ros.model.any_model import load_any_model
+from herd_ros.model import kinds
 from herd_ros.simulation.herd_simulator import first_pairs, simulate
 from herd_ros.simulation.statistics import herd_statistics
 from herd_ros.trajectory import write_trajectory_csv
@@ -55,7 +55,7 @@ def first_state(p: np.ndarray, dt: float, source) -> tuple[np.ndarray, np.ndarra
 def run(args) -> int:
     if args.steps < 2:
         raise HerdInputError(f'--steps must be at least 2, got {args.steps}')
-    model = load_any_model(args.model)
+    model = kinds.load(args.model)
     u0 = None
     if args.initial:
         runs, _ = load_runs(args.initial)

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 from herd_ros.cli.common import parse_floats, parse_grid, progress
 from herd_ros.errors import HerdInputError
-from herd_ros.model.model_file import load_model, save_model
+from herd_ros.model import kinds
+from herd_ros.model.herd_model import HerdModel
 from herd_ros.simulation.herd_simulator import simulate
 from herd_ros.synthesis.known_truth import initial_positions, make_truth_model
 from herd_ros.trajectory import write_trajectory_csv
@@ -48,13 +49,17 @@ def run(args) -> int:
 
 def _law(args) -> int:
     if args.model:
-        truth = load_model(args.model)
+        truth = kinds.load(args.model)
+        if not isinstance(truth, HerdModel):
+            from herd_ros.errors import HerdInputError
+            raise HerdInputError(f'{args.model}: synth --law schwager simulates the pairwise '
+                                 f'law (kind schwager2007)')
     else:
         truth = make_truth_model(args.agents, seed=args.seed, grid=parse_grid(args.grid),
                                  bounds=parse_floats(args.bounds, 4, '--bounds'), dt=args.dt,
                                  noise_std=args.noise_std)
         if args.truth_out:
-            save_model(truth, args.truth_out)
+            kinds.save(truth, args.truth_out)
             print(f'truth model: {args.truth_out}')
     p0 = initial_positions(truth, seed=args.seed,
                            spread=min(30.0, 5.0 * truth.n_agents))

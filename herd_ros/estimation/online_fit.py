@@ -477,12 +477,8 @@ class OnlineHerdEstimator:
 
     def save_model(self, path, frame_id: str = 'map', datum=None):
         """Write the model file (``schwager2007`` or ``schwager2007_shared``) atomically."""
-        model = self.model(frame_id, datum)
-        if self.law == 'pairwise':
-            from herd_ros.model.model_file import save_model
-            return save_model(model, path)
-        from herd_ros.model.shared_law import save_shared_model
-        return save_shared_model(model, path)
+        from herd_ros.model.kinds import save
+        return save(self.model(frame_id, datum), path)
 
     # -- checkpoints -----------------------------------------------------------------------
     def state(self) -> dict:

@@ -267,11 +267,10 @@ def write_atomic(path, text: str) -> Path:
 
 def save_model(model: HerdModel, path, selection: dict | None = None) -> Path:
     """Write the model file of DESIGN.md (with ``selection``: the ``model.selection``
-    mapping of a selected fit, see :func:`selection_entry`)."""
-    body = model_to_dict(model)
-    if selection:
-        body['selection'] = selection
-    return write_atomic(path, dump_parameters(body))
+    mapping of a selected fit, see :func:`selection_entry`); :func:`herd_ros.model.kinds
+    .save`, which writes every kind."""
+    from herd_ros.model.kinds import save
+    return save(model, path, selection)
 
 
 def selection_entry(selection: dict) -> dict:

@@ -473,11 +473,9 @@ def shared_model_from_dict(body: dict, source: str = 'model') -> SharedLawModel:
 
 def save_shared_model(model: SharedLawModel, path, selection: dict | None = None):
     """Write the ``schwager2007_shared`` model file atomically (``selection``: see
-    :func:`herd_ros.model.model_file.selection_entry`)."""
-    body = shared_model_to_dict(model)
-    if selection:
-        body['selection'] = selection
-    return write_atomic(path, dump_parameters(body))
+    :func:`herd_ros.model.model_file.selection_entry`); :func:`herd_ros.model.kinds.save`."""
+    from herd_ros.model.kinds import save
+    return save(model, path, selection)
 
 
 def load_shared_model(path) -> SharedLawModel:

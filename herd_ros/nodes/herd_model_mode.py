@@ -15,7 +15,7 @@ from herd_ros.control.herd_follower import (HerdClockHold, HerdFollower, followe
                                             model_from_parameter_matrix,
                                             shared_model_from_parameter_matrix)
 from herd_ros.errors import HerdInputError
-from herd_ros.model.any_model import any_model_from_dict
+from herd_ros.model import kinds
 from herd_ros.model.model_structure import ModelStructure
 from herd_ros.model.rbf_field import FieldGrid
 from herd_ros.nodes.ros_common import ParameterError, declare_parameters
@@ -86,7 +86,7 @@ class HerdModelPolicy:
                 node = node.setdefault(part, {})
             node[leaf] = value
         try:
-            return any_model_from_dict(body, source='parameters model.*')
+            return kinds.from_dict(body, source='parameters model.*')
         except HerdInputError as exc:
             raise ParameterError(str(exc)) from None
 
