@@ -178,6 +178,8 @@ def run(args) -> int:
     _print_selection(selection, train[0].dt)
     print('\n'.join(skill_lines(summary)))
     _print_summary(fit, summary, args)
+    from herd_ros.simulation.free_run import format_free_run
+    print(format_free_run(summary['free_run'], per_agent=bool(args.report)))
     if args.report:
         from herd_ros.report.fit_figures import write_fit_figures
         paths = write_fit_figures(fit, summary, train, args.report)

@@ -36,5 +36,7 @@ def run(args) -> int:
     public['figures'] = [p.name for p in paths]
     (Path(args.out) / 'summary.json').write_text(json.dumps(public, indent=1))
     print('\n'.join(skill_lines(summary)))
+    from herd_ros.simulation.free_run import format_free_run
+    print(format_free_run(summary['free_run'], per_agent=True))
     print(f'report: {len(paths)} figures and summary.json in {args.out}')
     return 0

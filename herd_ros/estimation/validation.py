@@ -176,4 +176,7 @@ def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajector
     summary['statistics'] = {'real': real_stats, 'simulated': sim_stats,
                              'relative_difference': relative_differences(real_stats, sim_stats)}
     summary['_simulated_runs'] = sims
+    # free run from the start of the (longest) evaluation run for its length (issue 30)
+    from herd_ros.simulation.free_run import free_run_fidelity
+    summary['free_run'] = free_run_fidelity(model, max(evaluate_on, key=lambda r: r.n_steps))
     return summary

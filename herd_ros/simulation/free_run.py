@@ -1,0 +1,120 @@
+"""Free-run fidelity (issue 30): does the law, run freely, keep the herd's shape and pace?
+
+One-step skill says how well the law predicts the next position from the true current one;
+robots driven by the law never get the true positions back. So the law is also run freely
+from the start of held-out data for its whole length, with its noise, several seeds, and
+the held-out data and the runs are compared on statistics of shape and pace — per animal,
+then the herd's mean over animals:
+
+* ``distance``: mean over time of the animal's mean distance to the others (m);
+* ``spread``: standard deviation over time of that distance (m);
+* ``pace``: mean displacement over :data:`PACE_WINDOW_S` divided by that window (m/s) —
+  collar noise barely touches it, unlike a speed at the clock step;
+* ``mean_speed``, ``std_speed``: the paper's, ‖p^{τ+1} − p^τ‖/Δt between consecutive
+  steps (Schwager, Anderson & Rus 2007, Fig. 6; :mod:`herd_ros.simulation.statistics`).
+
+Each statistic of the runs is summarised by its median over seeds and the range (min, max),
+and the median's relative difference to the data's.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from herd_ros.trajectory import HerdTrajectory
+
+STATISTICS = ('distance', 'spread', 'pace', 'mean_speed', 'std_speed')
+#: the displacement window of ``pace`` (s): ten minutes
+PACE_WINDOW_S = 600.0
+#: noise seeds of a free run
+SEEDS = 5
+
+
+def shape_and_pace(positions: np.ndarray, dt: float, pace_window_s: float = PACE_WINDOW_S
+                   ) -> dict[str, np.ndarray]:
+    """Per animal (N,) each of :data:`STATISTICS` of ``positions`` (T, N, 2) on a clock of
+    step ``dt`` (NaN = missing; a statistic with no data is NaN). The pace window is
+    ``pace_window_s`` or, for a run shorter than two windows, a quarter of the run."""
+    p = np.asarray(positions, dtype=float)
+    T, n = p.shape[:2]
+    d = np.sqrt(((p[:, None] - p[:, :, None]) ** 2).sum(-1))            # (T, N, N)
+    d[:, np.arange(n), np.arange(n)] = np.nan
+    with np.errstate(invalid='ignore'), _quiet():
+        mean_d = np.nanmean(d, axis=2)                                  # (T, N)
+        distance = np.nanmean(mean_d, axis=0)
+        spread = np.nanstd(mean_d, axis=0)
+        w = int(round(pace_window_s / dt))
+        if T < 2 * max(w, 1):
+            w = max(T // 4, 1)
+        disp = np.sqrt(((p[w:] - p[:-w]) ** 2).sum(-1)) if T > w else np.full((0, n), np.nan)
+        pace = np.nanmean(disp, axis=0) / (w * dt)
+        v = np.sqrt((np.diff(p, axis=0) ** 2).sum(-1)) / dt
+        mean_speed, std_speed = np.nanmean(v, axis=0), np.nanstd(v, axis=0)
+    return {'distance': distance, 'spread': spread, 'pace': pace,
+            'mean_speed': mean_speed, 'std_speed': std_speed}
+
+
+class _quiet:
+    """numpy's "mean of empty slice" warnings off (an animal absent throughout is NaN)."""
+
+    def __enter__(self):
+        import warnings
+        self._w = warnings.catch_warnings()
+        self._w.__enter__()
+        warnings.simplefilter('ignore', RuntimeWarning)
+
+    def __exit__(self, *exc):
+        return self._w.__exit__(*exc)
+
+
+def free_run_fidelity(model, run: HerdTrajectory, seeds: int = SEEDS) -> dict:
+    """The law of ``model`` run freely from the start of ``run`` for its length (``seeds``
+    noise seeds, :func:`~herd_ros.simulation.herd_simulator.simulate_from`) against ``run``.
+
+    Returns {'steps', 'seeds', 'agents', 'herd': {stat: row}, 'per_agent': {agent: {stat:
+    row}}} with row = {'data', 'median', 'min', 'max', 'relative'} (relative = median/data −
+    1; the herd's row is over the mean of the animals' values).
+    """
+    from herd_ros.simulation.herd_simulator import simulate_from
+    agents = list(model.agents)
+    order = [run.agents.index(a) for a in agents]
+    data = shape_and_pace(run.positions[:, order], model.dt)
+    sims = []
+    for seed in range(seeds):
+        sim = simulate_from(model, HerdTrajectory(run.times, agents,
+                                                  run.positions[:, order]), seed=seed)
+        sims.append(shape_and_pace(sim.positions, model.dt))
+
+    def row(values_data, values_sims):
+        arr = np.asarray(values_sims, dtype=float)
+        med = float(np.median(arr)) if np.isfinite(arr).all() else float('nan')
+        ref = float(values_data)
+        return {'data': ref, 'median': med, 'min': float(np.min(arr)),
+                'max': float(np.max(arr)),
+                'relative': med / ref - 1.0 if ref and np.isfinite(ref) else float('nan')}
+
+    per_agent = {a: {k: row(data[k][i], [s[k][i] for s in sims]) for k in STATISTICS}
+                 for i, a in enumerate(agents)}
+    with _quiet():
+        herd = {k: row(np.nanmean(data[k]), [np.nanmean(s[k]) for s in sims])
+                for k in STATISTICS}
+    return {'steps': int(run.n_steps), 'seeds': int(seeds), 'agents': agents, 'herd': herd,
+            'per_agent': per_agent}
+
+
+def format_free_run(result: dict, per_agent: bool = False) -> str:
+    """The free-run table: per statistic the data, the runs' median [min, max] and the
+    relative difference (herd, then each animal when ``per_agent``)."""
+    lines = [f'free run from the held-out start ({result["steps"]} steps, {result["seeds"]} '
+             f'noise seeds; median [min, max] of the runs vs the data):']
+    rows = [('herd', result['herd'])]
+    if per_agent:
+        rows += list(result['per_agent'].items())
+    width = max(len(name) for name, _ in rows)
+    for name, stats in rows:
+        cells = []
+        for k in STATISTICS:
+            r = stats[k]
+            cells.append(f'{k.replace("_", " ")} {r["median"]:.3g} [{r["min"]:.3g}, '
+                         f'{r["max"]:.3g}] vs {r["data"]:.3g} ({100 * r["relative"]:+.0f} %)')
+        lines.append(f'  {name:<{width}}  ' + '; '.join(cells))
+    return '\n'.join(lines)

@@ -1,0 +1,46 @@
+"""Free-run fidelity (issue 30): the statistics by hand, and a law that is the truth without
+noise reproduces its data exactly when run freely."""
+import numpy as np
+import pytest
+
+from herd_ros.simulation.free_run import free_run_fidelity, format_free_run, shape_and_pace
+from herd_ros.simulation.herd_simulator import simulate
+from herd_ros.synthesis.known_truth import initial_positions, make_truth_model
+from herd_ros.trajectory import HerdTrajectory
+
+
+def test_shape_and_pace_by_hand():
+    T = 4000
+    p = np.zeros((T, 2, 2))
+    p[:, 1, 0] = np.where(np.arange(T) % 2 == 0, 10.0, 20.0)   # b hops 10 m <-> 20 m
+    s = shape_and_pace(p, 1.0)
+    assert s['distance'] == pytest.approx([15.0, 15.0])
+    assert s['spread'] == pytest.approx([5.0, 5.0])
+    assert s['mean_speed'] == pytest.approx([0.0, 10.0]) and s['std_speed'] == pytest.approx(
+        [0.0, 0.0])
+    assert s['pace'] == pytest.approx([0.0, 0.0])          # back where it was every 600 s
+    q = np.zeros((T, 2, 2))
+    q[:, 1, 0] = 100.0 + 0.05 * np.arange(T)               # walks away at 5 cm/s
+    assert shape_and_pace(q, 1.0)['pace'][1] == pytest.approx(0.05)
+    q[100:200, 0] = np.nan                                 # a missing stretch is skipped
+    assert np.isfinite(shape_and_pace(q, 1.0)['distance']).all()
+
+
+def test_the_noise_free_truth_reproduces_its_data():
+    truth = make_truth_model(3, seed=1, noise_std=0.0)
+    run = simulate(truth, 800, initial_positions(truth, seed=1, spread=25), seed=0)
+    result = free_run_fidelity(truth, run, seeds=2)
+    for stat, row in result['herd'].items():
+        assert row['relative'] == pytest.approx(0.0, abs=1e-9), stat
+        assert row['min'] == pytest.approx(row['max'])
+    assert set(result['per_agent']) == set(truth.agents)
+    assert 'free run from the held-out start (800 steps, 2 noise seeds' in format_free_run(
+        result, per_agent=True)
+
+
+def test_a_noisy_law_spreads_its_runs():
+    truth = make_truth_model(3, seed=1)
+    run = simulate(truth, 800, initial_positions(truth, seed=1, spread=25), seed=0)
+    r = free_run_fidelity(truth, HerdTrajectory(run.times, run.agents, run.positions),
+                          seeds=3)['herd']['mean_speed']
+    assert r['min'] < r['max'] and r['min'] <= r['median'] <= r['max']
