@@ -23,7 +23,7 @@ def test_structured_qr_equals_dense_lstsq():
     reg, _ = random_regression()
     phi, y = reg.design()
     expected = np.linalg.lstsq(phi, y, rcond=None)[0]
-    fit = fit_agent(reg)
+    fit = fit_agent(reg, stable=False)     # the solver itself (random θ: a damping of 3)
     np.testing.assert_allclose(fit.theta, expected, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(fit.residuals.T.ravel(), y - phi @ expected, atol=1e-10)
 
@@ -97,3 +97,39 @@ def test_a_ridge_does_not_shrink_the_known_dampings():
         true = truth.laws[a].damping
         got = fit.model.damping[fit.model.agents.index(a)]
         assert abs(got / true - 1) < 0.02, (a, got, true)
+
+
+def test_an_unstable_damping_is_held_and_the_rest_refitted():
+    """Issue 30: data whose unconstrained least squares give |a| ≥ 1 (an accelerating
+    stretch) must not make an unstable law: the damping is held at DAMPING_MAX, the other
+    terms are the least squares with it held (computed here with numpy's lstsq)."""
+    from herd_ros.estimation.batch_ls import DAMPING_MAX, fit_agent
+    from herd_ros.model.regressors import AgentRegression
+    rng = np.random.default_rng(4)
+    m = 400
+    u = np.zeros((m + 1, 2))
+    u[0] = (0.3, -0.2)
+    for t in range(m):
+        u[t + 1] = 1.01 * u[t] + rng.normal(0, 0.01, 2)          # a = 1.01: unstable
+    ux, uy = u[:-1, 0], u[:-1, 1]
+    e = rng.normal(0, 1, (m, 1))                                   # one interaction column
+    A_x, A_y = np.column_stack([ux, e[:, 0]]), np.column_stack([uy, -e[:, 0]])
+    F = np.exp(-rng.random((m, 2)))                                # two field features
+    reg = AgentRegression('a', ['b'], A_x, A_y, F, u[1:, 0], u[1:, 1])
+    # the stacked design [[A_x, F, 0], [A_y, 0, F]] in θ order [a, θ, fu.., fv..]
+    Phi = np.block([[A_x, F, np.zeros_like(F)], [A_y, np.zeros_like(F), F]])
+    Y = np.concatenate([reg.y_x, reg.y_y])
+    free_ls = np.linalg.lstsq(Phi, Y, rcond=None)[0]
+    assert free_ls[0] > 1.0                                        # unconstrained: unstable
+    fit = fit_agent(reg)
+    assert fit.theta[0] == DAMPING_MAX and 'held at' in fit.constrained
+    held = np.linalg.lstsq(Phi[:, 1:], Y - DAMPING_MAX * Phi[:, 0], rcond=None)[0]
+    assert np.allclose(fit.theta[1:], held, atol=1e-10)
+    assert fit.theta_se[0] == 0.0 and (fit.theta_se[1:] > 0).all()
+    # a stable fit is left alone
+    u2 = u.copy()
+    for t in range(m):
+        u2[t + 1] = 0.9 * u2[t] + rng.normal(0, 0.01, 2)
+    reg2 = AgentRegression('a', ['b'], np.column_stack([u2[:-1, 0], e[:, 0]]),
+                           np.column_stack([u2[:-1, 1], -e[:, 0]]), F, u2[1:, 0], u2[1:, 1])
+    assert fit_agent(reg2).constrained == '' and abs(fit_agent(reg2).theta[0] - 0.9) < 0.05

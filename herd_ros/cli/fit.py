@@ -178,6 +178,9 @@ def run(args) -> int:
     _print_selection(selection, train[0].dt)
     print('\n'.join(skill_lines(summary)))
     _print_summary(fit, summary, args)
+    for agent, entry in summary['agents'].items():
+        if entry.get('constrained'):
+            print(f'stability: {agent}: {entry["constrained"]}')
     from herd_ros.simulation.free_run import format_free_run
     print(format_free_run(summary['free_run'], per_agent=bool(args.report)))
     if args.report:

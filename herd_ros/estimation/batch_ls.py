@@ -45,6 +45,10 @@ from herd_ros.model.regressors import AgentRegression
 
 #: A column whose R diagonal falls below this fraction of its norm is not identifiable.
 RANK_TOLERANCE = 1e-10
+#: The largest |damping| a fit returns: u^{τ+1} = a ū^τ + … is stable only for |a| < 1.
+#: Data whose unconstrained least squares give |a| ≥ this (an accelerating stretch, a
+#: drift) get the damping fixed here and the other terms refitted (issue 30).
+DAMPING_MAX = 0.999
 
 
 @dataclass
@@ -58,6 +62,7 @@ class LeastSquaresFit:
     noise_cov: np.ndarray  # (2, 2) Q_i
     n_samples: int
     condition: float
+    constrained: str = ''    # why a parameter was held (the damping at ±DAMPING_MAX), or ''
 
     @property
     def rms(self) -> float:
@@ -129,8 +134,11 @@ def _parameter_label(reg: AgentRegression, internal_index: int) -> str:
     return names[internal_index]
 
 
-def fit_agent(reg: AgentRegression, ridge: float = 0.0, se: str = 'sandwich') -> LeastSquaresFit:
-    """Batch least squares of one agent (see the module docstring for the method)."""
+def fit_agent(reg: AgentRegression, ridge: float = 0.0, se: str = 'sandwich',
+              stable: bool = True) -> LeastSquaresFit:
+    """Batch least squares of one agent (see the module docstring for the method); with
+    ``stable`` (default) a damping at or beyond ±:data:`DAMPING_MAX` is held there and the
+    other terms refitted (``constrained`` says so)."""
     if ridge < 0 or not np.isfinite(ridge):
         raise HerdInputError(f'ridge must be a finite number ≥ 0, got {ridge}')
     m, K = reg.F.shape
@@ -157,6 +165,22 @@ def fit_agent(reg: AgentRegression, ridge: float = 0.0, se: str = 'sandwich') ->
     if not np.isfinite(theta_int).all():
         raise HerdInputError(f'agent {reg.agent}: the least-squares solution is not finite '
                              f'(singular data); add --ridge')
+    a = 2 * K                             # the damping's internal index
+    free = np.ones(len(theta_int), bool)
+    constrained = ''
+    if stable and abs(theta_int[a]) >= DAMPING_MAX:
+        # min ‖R θ − z‖ with θ_a held at ±DAMPING_MAX: the other columns refitted to
+        # z − R_a θ_a (a QR of R without column a: p × (p − 1), cheap)
+        held = float(np.copysign(DAMPING_MAX, theta_int[a]))
+        constrained = (f'damping {theta_int[a]:.4f} of the unconstrained fit is not stable '
+                       f'(|a| ≥ 1 - {1 - DAMPING_MAX:g}): held at {held:g}, the other terms '
+                       f'refitted')
+        free[a] = False
+        Qf, Rf = np.linalg.qr(R[:, free], mode='reduced')
+        theta_int = np.empty_like(theta_int)
+        theta_int[a] = held
+        theta_int[free] = solve_triangular(Rf, Qf.T @ (z - R[:, a] * held))
+        R = Rf
     order = _internal_to_theta_order(K, pa)
     theta = theta_int[order]
     # residuals w^τ
@@ -169,21 +193,24 @@ def fit_agent(reg: AgentRegression, ridge: float = 0.0, se: str = 'sandwich') ->
     # short recording and makes simulated herds too calm)
     dof = max(m - len(theta) / 2.0, 1.0)
     noise_cov = residuals.T @ residuals / dof
-    # covariance of θ from R by triangular solves
+    # covariance of θ from R by triangular solves (a held parameter: zero variance)
     Rinv = solve_triangular(R, np.eye(len(R)))
     bread = Rinv @ Rinv.T
     if se == 'ols':
         dof = max(2 * m - len(theta), 1)
-        cov_int = bread * float((residuals ** 2).sum() / dof)
+        cov_free = bread * float((residuals ** 2).sum() / dof)
     elif se == 'sandwich':
         G = np.hstack([reg.F * r_x[:, None], reg.F * r_y[:, None],
-                       reg.A_x * r_x[:, None] + reg.A_y * r_y[:, None]])
+                       reg.A_x * r_x[:, None] + reg.A_y * r_y[:, None]])[:, free]
         meat = G.T @ G
-        cov_int = bread @ meat @ bread * (m / max(m - len(theta) / 2.0, 1.0))
+        cov_free = bread @ meat @ bread * (m / max(m - len(theta) / 2.0, 1.0))
     else:
         raise HerdInputError(f'unknown standard-error method {se!r} (sandwich or ols)')
+    cov_int = np.zeros((len(theta), len(theta)))
+    cov_int[np.ix_(free, free)] = cov_free
     cov = cov_int[np.ix_(order, order)]
-    s = np.linalg.svd(R, compute_uv=False)
+    s = np.linalg.svd(R, compute_uv=False) if R.shape[1] else np.ones(1)   # all held: 1
     return LeastSquaresFit(theta=theta, theta_se=np.sqrt(np.clip(np.diag(cov), 0, None)),
                            theta_cov=cov, residuals=residuals, noise_cov=noise_cov,
-                           n_samples=m, condition=float(s[0] / s[-1]) if s[-1] > 0 else np.inf)
+                           n_samples=m, condition=float(s[0] / s[-1]) if s[-1] > 0 else np.inf,
+                           constrained=constrained)

@@ -165,6 +165,7 @@ def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajector
             'field_centres': int(basis.size),
             'samples': int(fit.fits[a].n_samples) if a in fit.fits else None,
             'condition': float(fit.fits[a].condition) if a in fit.fits else None,
+            'constrained': fit.fits[a].constrained if a in fit.fits else '',
             'noise_cov': model.noise_cov[model.agents.index(a)].ravel().tolist(),
             'whiteness_velocity': wv.as_dict(), 'whiteness_residual': wr.as_dict(),
             'acf_velocity': wv.acf.tolist(), 'acf_residual': wr.acf.tolist(),
