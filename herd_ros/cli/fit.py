@@ -59,11 +59,14 @@ def add_arguments(p):
     add_filter_arguments(p)
     p.set_defaults(motion_model='fixed')      # the law is learned from the fixed-model track
     p.add_argument('--report', metavar='DIR', help='write figures and summary.json here')
-    p.add_argument('--field', choices=('fitted', 'space-use'), default='fitted',
+    p.add_argument('--field', choices=('auto', 'fitted', 'space-use'), default='auto',
                    help='environment field: fitted = least squares with the rest of the law '
                         '(kept only if cross-validation does); space-use = the Langevin field '
                         'that makes each agent spend its time where the animal did (for '
-                        'simulations and robots that must stay in the range over hours)')
+                        'simulations and robots that must stay in the range over hours); '
+                        'auto = space-use when, on a validation tail of the training data, '
+                        'it makes the law run freely closer to the herd (distance, spread, '
+                        'pace) at most 2 %% worse one step ahead, else fitted')
     p.add_argument('--noise', choices=('gaussian', 'regimes'), default='gaussian',
                    help='noise of the law: gaussian = N(0, Q_i) (the paper); regimes = '
                         'stop-and-go, 1-3 noise levels switching as a Markov chain, chosen by '
@@ -171,7 +174,9 @@ def run(args) -> int:
     bar.close()
     chosen = selection.as_dict()
     chosen['loss'] = args.loss
+    chosen['_selection'] = selection
     fit = _long_run_terms(fit, train, args, chosen)
+    chosen.pop('_selection')
     kinds.save(fit.model, args.output, selection=selection_entry(chosen))
     summary = validate(fit, train, test, seed=args.seed)
     summary['selection'] = chosen
@@ -204,7 +209,25 @@ def _long_run_terms(fit, train, args, chosen):
 
     model = fit.model
     positions = [aligned_positions(r, model.agents) for r in train]
-    if args.field == 'space-use':
+    field = args.field
+    if field == 'auto':
+        from herd_ros.estimation.field_choice import choose_space_use
+        from herd_ros.estimation.herd_fit import fit_structure
+        sel = chosen['_selection']
+        keep, figures = choose_space_use(train, lambda runs: fit_structure(
+            runs, sel.chosen, law=sel.law, profile=sel.profile, bounds=sel.bounds,
+            min_visits=args.min_visits, se=args.se, own_agents=sel.own_agents,
+            own_profile=sel.own_profile).model)
+        field = 'space-use' if keep else 'fitted'
+        chosen['field_choice'] = figures
+        if 'reason' in figures:
+            print(f'field: fitted ({figures["reason"]})')
+        else:
+            f, s_ = figures['fitted'], figures['space_use']
+            print(f'field: {field} (validation tail of the training data: free-run error '
+                  f'{s_["free_run_error"]:.2f} with space-use vs {f["free_run_error"]:.2f} '
+                  f'fitted, one-step RMS {s_["one_step"]:.4f} vs {f["one_step"]:.4f})')
+    if field == 'space-use':
         from herd_ros.model.space_use_field import with_space_use_field
         bar = progress(total=model.n_agents, desc='space-use field', unit='agent')
         model = with_space_use_field(model, np.concatenate(positions),

@@ -1,0 +1,81 @@
+"""Which environment field a law gets, judged by how the law runs freely (issue 30).
+
+Cross-validation of the one-step error chooses the structure (:mod:`model_selection`); one
+step ahead, a field that keeps each animal in its range earns little, so it is left out —
+and the law, run freely, lets the herd drift apart (the steers: distance +364 %). The
+space-use field (:mod:`herd_ros.model.space_use_field`) makes each animal spend its time
+where it did; it can cost one-step skill (the baboons' troop travels: a fixed field pulls it
+back). So the choice is made on data the fit has not seen, a validation tail of the
+training data, on both counts (a split-sample check: the law is fitted on the first
+:data:`FIT_FRACTION` of every training run and judged on the rest):
+
+* the free-run error: the largest |log(run / data)| over the herd's distance, spread and
+  pace (:func:`~herd_ros.simulation.free_run.free_run_fidelity`, median of the seeds);
+* the one-step RMS.
+
+The space-use field is kept only where the fitted law clearly fails to run freely (its
+free-run error above :data:`CLEAR_FAILURE`: a statistic off by more than half) and the
+space-use field at least halves that error at most :data:`ONE_STEP_TOLERANCE` worse one
+step ahead. A law that already runs about right keeps its fitted field (on the known-truth
+herds the field fitted is the true one).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: the fitted share of each training run; the rest judges the fields
+FIT_FRACTION = 0.8
+#: how much worse (relative) the one-step RMS may get for a better free run
+ONE_STEP_TOLERANCE = 0.02
+#: a free-run error (max |log ratio|) beyond which the fitted law clearly fails: ×1.5 or ÷1.5
+CLEAR_FAILURE = float(np.log(1.5))
+#: noise seeds of the free runs of the check
+SEEDS = 3
+#: the statistics the free-run error is taken over
+SHAPE = ('distance', 'spread', 'pace')
+
+
+def free_run_error(result: dict) -> float:
+    """max over :data:`SHAPE` of |log(median of the runs / data)| (the herd's); inf when a
+    statistic is not finite or not positive."""
+    worst = 0.0
+    for k in SHAPE:
+        r = result['herd'][k]
+        if not (r['median'] > 0 and r['data'] > 0):
+            return float('inf')
+        worst = max(worst, abs(float(np.log(r['median'] / r['data']))))
+    return worst
+
+
+def choose_space_use(train, refit, seeds: int = SEEDS) -> tuple[bool, dict]:
+    """Whether the space-use field earns its place (see the module docstring).
+
+    Args:
+        train: the training runs (HerdTrajectory).
+        refit: ``runs -> model``: the chosen structure fitted on ``runs``.
+    Returns:
+        (keep, figures) with figures {'fitted'|'space_use': {'one_step', 'free_run_error'}}
+        on the validation tail, or (False, {'reason': ...}) when there is too little data.
+    """
+    from herd_ros.estimation.herd_fit import aligned_positions, split_runs
+    from herd_ros.model.space_use_field import with_space_use_field
+    from herd_ros.simulation.free_run import free_run_fidelity
+    from herd_ros.simulation.prediction import one_step_rms
+    fit_part, tail = split_runs(train, FIT_FRACTION)
+    tail = [r for r in tail if r.n_steps >= 10]
+    if not tail:
+        return False, {'reason': 'too little training data for a validation tail'}
+    model = refit(fit_part)
+    positions = np.concatenate([aligned_positions(r, model.agents) for r in fit_part])
+    variants = {'fitted': model, 'space_use': with_space_use_field(model, positions)}
+    longest = max(tail, key=lambda r: r.n_steps)
+    figures = {}
+    for name, m in variants.items():
+        figures[name] = {
+            'one_step': float(one_step_rms(m, tail)['model']['herd']),
+            'free_run_error': free_run_error(free_run_fidelity(m, longest, seeds=seeds))}
+    f, s = figures['fitted'], figures['space_use']
+    keep = (f['free_run_error'] > CLEAR_FAILURE
+            and s['free_run_error'] <= 0.5 * f['free_run_error']
+            and s['one_step'] <= (1.0 + ONE_STEP_TOLERANCE) * f['one_step'])
+    return keep, figures
