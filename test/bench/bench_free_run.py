@@ -1,5 +1,5 @@
 """Free-run fidelity on the shipped real herds (issue 30, acceptance 1's measure): fitted by
-`herd-ros fit` on the first half (defaults, and with `--field space-use`), the law run
+`herd-ros fit` on the first half (defaults: --field auto; and each field forced), the law run
 freely from the second half's start for its length, 5 noise seeds; herd distance, spread
 and pace of the runs (median [min, max]) against the second half, beside the one-step RMS.
 The bar of the issue: distance and spread within 25 %, pace within 35 %.
@@ -14,7 +14,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 HERDS = {'baboons': ROOT / 'bags' / 'baboons_1h', 'steers': ROOT / 'bags' / 'steers_72h.csv'}
-VARIANTS = {'defaults': [], 'space-use field': ['--field', 'space-use']}
+VARIANTS = {'defaults': [], 'fitted field': ['--field', 'fitted'],
+            'space-use field': ['--field', 'space-use']}
 
 
 def main():
