@@ -111,6 +111,11 @@ def test_demo_chooses_everything_from_the_bag_and_writes_the_contract(demo_run):
     for f in ('herd_poses.csv', 'herd_predictions.csv', 'fig_trajectories.png',
               'fig_statistics.png', 'fig_params.png'):
         assert (out / f).exists(), f
+    # issue 30: each robot starts where its animal is, and is judged against it
+    verdict = summary['verdict']
+    assert set(verdict['robots']) == set(summary['robots'])
+    assert all(e['start_offset_m'] < 1.0 for e in verdict['robots'].values()), verdict
+    assert 'pass' in stdout or 'FAIL' in stdout
 
 
 @pytest.mark.slow

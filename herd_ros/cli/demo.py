@@ -90,6 +90,11 @@ def run(args) -> int:
         unit = 'm' if 'distance' in key else 'm/s'
         print(f'  {key:14s} animals {c:8.3f} {unit:3s}  robots {r:8.3f} {unit:3s}  '
               f'({100 * summary["herd_relative_difference"].get(key, float("nan")):.0f} % apart)')
+    v = summary['verdict']
+    print(f'Each robot against its animal (every statistic within {100 * v["bar"]:.0f} %): '
+          + ', '.join(f'{r} ({e["animal"]}, started {e["start_offset_m"]:.1f} m off) '
+                      f'{"pass" if e["pass"] else "FAIL"}' for r, e in v['robots'].items())
+          + f'; herd {"pass" if v["herd_pass"] else "FAIL"}')
     sk = summary['prediction_skill']
     print(f'One-step predictions of the live estimator over the second half '
           f'({sk["samples"]} animal-ticks), RMS: model {sk["model"]:.3f} m, constant velocity '

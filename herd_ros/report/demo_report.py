@@ -88,6 +88,31 @@ def _finite_rows(traj: HerdTrajectory) -> HerdTrajectory:
     return HerdTrajectory(traj.times[keep], list(traj.agents), traj.positions[keep])
 
 
+#: a robot passes when each of its statistics is within this of its animal's (issue 30)
+PASS_BAR = 0.30
+
+
+def verdict(cows: HerdTrajectory, robots: HerdTrajectory, assignment, rel: dict,
+            herd_rel: dict) -> dict:
+    """Each robot against its animal: where it started (its first position against the
+    animal's first herd pose, m) and whether every statistic is within :data:`PASS_BAR`;
+    the herd's likewise."""
+    out = {'bar': PASS_BAR, 'robots': {}}
+    for k, (r, a) in enumerate(zip(robots.agents, assignment)):
+        start = float('nan')
+        if a in cows.agents:
+            pc = cows.positions[:, cows.agents.index(a)]
+            pr = robots.positions[:, k]
+            fc, fr = np.isfinite(pc).all(-1), np.isfinite(pr).all(-1)
+            if fc.any() and fr.any():
+                start = float(np.hypot(*(pr[np.argmax(fr)] - pc[np.argmax(fc)])))
+        out['robots'][r] = {'animal': a, 'start_offset_m': start,
+                            'pass': bool(r in rel and all(v <= PASS_BAR
+                                                          for v in rel[r].values()))}
+    out['herd_pass'] = bool(herd_rel) and all(v <= PASS_BAR for v in herd_rel.values())
+    return out
+
+
 def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
                       assignment: list[str], param_times, param_thetas, fence=None,
                       facts: dict | None = None, law: str = 'pairwise',
@@ -126,6 +151,7 @@ def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
     summary = {'cows': cow_stats, 'robots': robot_stats, 'assignment': dict(zip(robots.agents,
                                                                                assignment)),
                'relative_difference': rel, 'herd_relative_difference': herd_rel,
+               'verdict': verdict(cows, robots, assignment, rel, herd_rel),
                'figures': figures, **(facts or {})}
     (out / 'summary.json').write_text(json.dumps(summary, indent=1))
     return summary
