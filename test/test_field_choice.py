@@ -30,3 +30,13 @@ def test_a_known_truth_herd_keeps_its_fitted_field():
         [run], lambda runs: fit_herd(runs, grid=(4, 4), bounds=(-75, 75, -75, 75)).model)
     assert not keep, figures
     assert figures['fitted']['free_run_error'] < CLEAR_FAILURE
+
+
+def test_a_gaussian_known_truth_keeps_gaussian_noise():
+    from herd_ros.estimation.field_choice import choose_noise_regimes
+    truth = make_truth_model(3, seed=1, grid=(4, 4), bounds=(-75, 75, -75, 75))
+    run = simulate(truth, 4000, initial_positions(truth, seed=1, spread=25), seed=2)
+    keep, figures = choose_noise_regimes(
+        [run], lambda runs: fit_herd(runs, grid=(4, 4), bounds=(-75, 75, -75, 75)).model,
+        space_use=False)
+    assert not keep and figures.get('regimes', 1) == 1, figures

@@ -67,10 +67,12 @@ def add_arguments(p):
                         'auto = space-use when, on a validation tail of the training data, '
                         'it makes the law run freely closer to the herd (distance, spread, '
                         'pace) at most 2 %% worse one step ahead, else fitted')
-    p.add_argument('--noise', choices=('gaussian', 'regimes'), default='gaussian',
+    p.add_argument('--noise', choices=('auto', 'gaussian', 'regimes'), default='auto',
                    help='noise of the law: gaussian = N(0, Q_i) (the paper); regimes = '
                         'stop-and-go, 1-3 noise levels switching as a Markov chain, chosen by '
-                        'BIC (for animals that rest and move in bursts)')
+                        'BIC (for animals that rest and move in bursts); auto = regimes when, '
+                        'on a validation tail of the training data, they make the law run '
+                        'freely clearly closer to the herd (every statistic), else gaussian')
     p.add_argument('--seed', type=int, default=0, help='seed of the validation simulation')
     p.add_argument('--online', action='store_true',
                    help='recursive least squares over the whole file (the estimator node\'s '
@@ -239,7 +241,26 @@ def _long_run_terms(fit, train, args, chosen):
             print(f'space-use field: kernel bandwidth {np.nanmin(h):.2f}-{np.nanmax(h):.2f} m')
         for agent, why in model.meta['space_use_kept_fitted'].items():
             print(f'space-use field: {agent} keeps its fitted field ({why})')
-    if args.noise == 'regimes':
+    noise = args.noise
+    if noise == 'auto':
+        from herd_ros.estimation.field_choice import choose_noise_regimes
+        from herd_ros.estimation.herd_fit import fit_structure
+        sel = chosen['_selection']
+        keep, figures = choose_noise_regimes(train, lambda runs: fit_structure(
+            runs, sel.chosen, law=sel.law, profile=sel.profile, bounds=sel.bounds,
+            min_visits=args.min_visits, se=args.se, own_agents=sel.own_agents,
+            own_profile=sel.own_profile).model, space_use=field == 'space-use')
+        noise = 'regimes' if keep else 'gaussian'
+        chosen['noise_choice'] = figures
+        if 'reason' in figures:
+            print(f'noise: gaussian ({figures["reason"]})')
+        else:
+            r, g = figures['regimes'], figures['gaussian']
+            print(f'noise: {noise} (validation tail of the training data, free-run error '
+                  f'with {figures["regimes_count"]} regimes vs gaussian: all statistics '
+                  f'{r["free_run_error"]:.2f} vs {g["free_run_error"]:.2f}, shape '
+                  f'{r["shape_error"]:.2f} vs {g["shape_error"]:.2f})')
+    if noise == 'regimes':
         from herd_ros.model.noise_regimes import with_noise_regimes
         print('noise regimes: fitting 1-3 regimes per agent (Baum-Welch) ...', flush=True)
         model, regimes = with_noise_regimes(model, positions)

@@ -1,4 +1,5 @@
-"""Which environment field a law gets, judged by how the law runs freely (issue 30).
+"""Which environment field and which noise a law gets, judged by how it runs freely
+(issue 30).
 
 Cross-validation of the one-step error chooses the structure (:mod:`model_selection`); one
 step ahead, a field that keeps each animal in its range earns little, so it is left out —
@@ -12,6 +13,13 @@ training data, on both counts (a split-sample check: the law is fitted on the fi
 * the free-run error: the largest |log(run / data)| over the herd's distance, spread and
   pace (:func:`~herd_ros.simulation.free_run.free_run_fidelity`, median of the seeds);
 * the one-step RMS.
+
+Noise regimes (stop-and-go noise, :mod:`herd_ros.model.noise_regimes`) change nothing one
+step ahead (the mean prediction is the same); they are kept when they make the free run
+clearly closer on all of :data:`~herd_ros.simulation.free_run.STATISTICS` (the error falls
+below :data:`REGIMES_GAIN` of the Gaussian noise's) without making the herd's shape worse
+(its :data:`SHAPE` error at most :data:`SHAPE_SLACK` times the Gaussian noise's) —
+:func:`choose_noise_regimes`.
 
 The space-use field is kept only where the fitted law clearly fails to run freely (its
 free-run error above :data:`CLEAR_FAILURE`: a statistic off by more than half) and the
@@ -29,17 +37,21 @@ FIT_FRACTION = 0.8
 ONE_STEP_TOLERANCE = 0.02
 #: a free-run error (max |log ratio|) beyond which the fitted law clearly fails: ×1.5 or ÷1.5
 CLEAR_FAILURE = float(np.log(1.5))
+#: noise regimes are kept when their free-run error is below this share of Gaussian noise's
+REGIMES_GAIN = 0.8
+#: how much worse the shape error may get with noise regimes (their gain is in the speeds)
+SHAPE_SLACK = 1.1
 #: noise seeds of the free runs of the check
 SEEDS = 3
 #: the statistics the free-run error is taken over
 SHAPE = ('distance', 'spread', 'pace')
 
 
-def free_run_error(result: dict) -> float:
-    """max over :data:`SHAPE` of |log(median of the runs / data)| (the herd's); inf when a
-    statistic is not finite or not positive."""
+def free_run_error(result: dict, statistics=SHAPE) -> float:
+    """max over ``statistics`` (default :data:`SHAPE`) of |log(median of the runs / data)|
+    (the herd's); inf when a statistic is not finite or not positive."""
     worst = 0.0
-    for k in SHAPE:
+    for k in statistics:
         r = result['herd'][k]
         if not (r['median'] > 0 and r['data'] > 0):
             return float('inf')
@@ -78,4 +90,38 @@ def choose_space_use(train, refit, seeds: int = SEEDS) -> tuple[bool, dict]:
     keep = (f['free_run_error'] > CLEAR_FAILURE
             and s['free_run_error'] <= 0.5 * f['free_run_error']
             and s['one_step'] <= (1.0 + ONE_STEP_TOLERANCE) * f['one_step'])
+    return keep, figures
+
+
+def choose_noise_regimes(train, refit, space_use: bool, seeds: int = SEEDS) -> tuple:
+    """Whether noise regimes earn their place (see the module docstring): the law of
+    ``refit`` on the fitted share of ``train`` (with the space-use field when ``space_use``),
+    with Gaussian noise and with regimes, run freely over the validation tail.
+
+    Returns (keep, figures) with figures {'gaussian'|'regimes': {'free_run_error'},
+    'regimes': K}, or (False, {'reason': ...})."""
+    from herd_ros.estimation.herd_fit import aligned_positions, split_runs
+    from herd_ros.model.noise_regimes import with_noise_regimes
+    from herd_ros.model.space_use_field import with_space_use_field
+    from herd_ros.simulation.free_run import STATISTICS, free_run_fidelity
+    fit_part, tail = split_runs(train, FIT_FRACTION)
+    tail = [r for r in tail if r.n_steps >= 10]
+    if not tail:
+        return False, {'reason': 'too little training data for a validation tail'}
+    model = refit(fit_part)
+    positions = [aligned_positions(r, model.agents) for r in fit_part]
+    if space_use:
+        model = with_space_use_field(model, np.concatenate(positions))
+    regimes, info = with_noise_regimes(model, positions)
+    if info['n_regimes'] == 1:
+        return False, {'reason': 'BIC keeps one noise level', 'regimes': 1}
+    longest = max(tail, key=lambda r: r.n_steps)
+    figures = {'regimes_count': int(info['n_regimes'])}
+    for name, m in (('gaussian', model), ('regimes', regimes)):
+        result = free_run_fidelity(m, longest, seeds=seeds)
+        figures[name] = {'free_run_error': free_run_error(result, STATISTICS),
+                         'shape_error': free_run_error(result, SHAPE)}
+    g, r = figures['gaussian'], figures['regimes']
+    keep = (r['free_run_error'] < REGIMES_GAIN * g['free_run_error']
+            and r['shape_error'] <= SHAPE_SLACK * g['shape_error'])
     return keep, figures
