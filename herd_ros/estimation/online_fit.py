@@ -53,6 +53,7 @@ from herd_ros.estimation.rls import HerdRLS
 from herd_ros.model.herd_model import AgentLaw, HerdModel
 from herd_ros.model.model_file import atomic_open
 from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS, FieldGrid, RbfBasis
+from herd_ros.model.regressors import pairwise_columns
 from herd_ros.model.shared_law import (DistanceProfile, SharedLawModel,
                                        shared_rows)
 
@@ -73,7 +74,6 @@ class PairwiseRegressor:
         n = len(agents)
         self.n_params = 1 + 2 * (n - 1) + 2 * basis.size
         self.field_offset = 2 * n - 1                 # index of field_u[0] in θ_i
-        self._offdiag = ~np.eye(n, dtype=bool)
 
     def neighbors(self, i: int) -> list[str]:
         return [a for k, a in enumerate(self.agents) if k != i]
@@ -89,16 +89,8 @@ class PairwiseRegressor:
         p0 = np.asarray(p_prev, dtype=float)
         n, K = p0.shape[0], self.basis.size
         u = (np.asarray(p_cur, dtype=float) - p0) / dt
-        off = p0[None, :, :] - p0[:, None, :]                     # [i, j] = p_j − p_i
-        d = np.sqrt((off ** 2).sum(-1))
-        dd = d[self._offdiag].reshape(n, n - 1)
-        with np.errstate(invalid='ignore', divide='ignore'):
-            e = off[self._offdiag].reshape(n, n - 1, 2) / dd[..., None]
-            e_over_d = e / dd[..., None]
-        # a missing neighbour drops out of the interaction sum (zero columns)
-        gone = ~np.isfinite(dd)
-        e[gone] = 0.0
-        e_over_d[gone] = 0.0
+        e, e_over_d, coincident = pairwise_columns(p0[None], np.arange(n))
+        e, e_over_d = e[0], e_over_d[0]                        # (N, N−1, 2)
         H = np.zeros((n, 2, self.n_params))
         H[:, :, 0] = u
         H[:, :, 1:n] = np.swapaxes(e, 1, 2)
@@ -107,7 +99,7 @@ class PairwiseRegressor:
         H[:, 0, 2 * n - 1:2 * n - 1 + K] = phi
         H[:, 1, 2 * n - 1 + K:] = phi
         valid = (np.isfinite(p0).all(axis=1) & np.isfinite(u).all(axis=1)
-                 & ~(dd <= 0).any(axis=1))
+                 & ~coincident[0])
         return H, valid
 
     def missing_neighbors(self, missing: np.ndarray, last_seen: np.ndarray, p_prev):

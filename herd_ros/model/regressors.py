@@ -16,6 +16,7 @@ and interaction columns, ``F`` (m × K) the basis, ``y_x, y_y`` (m,) the targets
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,8 +59,42 @@ def velocities(positions: np.ndarray, dt: float) -> np.ndarray:
     return np.diff(np.asarray(positions, dtype=float), axis=0) / dt
 
 
+@functools.lru_cache(maxsize=64)
+def _others(n: int) -> np.ndarray:
+    """(N, N−1): row i lists the other agents in order."""
+    return np.array([[j for j in range(n) if j != i] for i in range(n)], dtype=int)
+
+
+def pairwise_columns(positions: np.ndarray, rows) -> tuple:
+    """The pairwise law's interaction columns — the one builder of them, for the batch fit
+    and the selection (one agent over many steps) and the RLS (every agent at one step).
+
+    Args:
+        positions: (M, N, 2), NaN = missing.
+        rows: the agents i (indices) whose columns are wanted.
+    Returns:
+        (e, e_over_d, coincident): e_ij = (p_j − p_i)/d_ij and e_ij/d_ij, (M, R, N−1, 2) in
+        the order of the other agents (a missing neighbour: zero columns, it drops out of
+        the sum), and (M, R) where agent i shares its position with a neighbour (d = 0:
+        f_ij is undefined).
+    """
+    p = np.asarray(positions, dtype=float)
+    rows = np.atleast_1d(np.asarray(rows, dtype=int))
+    off = p[:, _others(p.shape[1])[rows]] - p[:, rows, None]     # (M, R, N−1, 2)
+    d = np.sqrt((off ** 2).sum(-1))
+    gone = ~np.isfinite(d)
+    coincident = (d <= 0).any(-1)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        e = off / d[..., None]
+        e_over_d = e / d[..., None]
+    e[gone] = 0.0
+    e_over_d[gone] = 0.0
+    return e, e_over_d, coincident
+
+
 def interaction_columns(positions: np.ndarray, i: int, times=None, agents=None):
-    """Unit vectors e_ij and e_ij/d_ij from agent i to every other agent.
+    """Unit vectors e_ij and e_ij/d_ij from agent i to every other agent
+    (:func:`pairwise_columns` of agent i).
 
     Args:
         positions: (M, N, 2).
@@ -71,25 +106,18 @@ def interaction_columns(positions: np.ndarray, i: int, times=None, agents=None):
 
     A neighbour missing at a step (NaN position) drops out: its columns are zero there.
     """
-    p = np.asarray(positions, dtype=float)
-    others = [j for j in range(p.shape[1]) if j != i]
-    off = p[:, others, :] - p[:, i:i + 1, :]
-    missing = ~np.isfinite(off).all(-1)
-    off[missing] = np.nan
-    d = np.sqrt((off ** 2).sum(-1))
-    if (d <= 0).any():
-        tau, k = np.argwhere(d <= 0)[0]
+    e, e_over_d, coincident = pairwise_columns(positions, [i])
+    if coincident.any():
+        p = np.asarray(positions, dtype=float)
+        others = [j for j in range(p.shape[1]) if j != i]
+        tau = int(np.argmax(coincident[:, 0]))
+        k = int(np.argmax(np.sqrt(((p[tau, others] - p[tau, i]) ** 2).sum(-1)) <= 0))
         who = (f'{agents[i]} and {agents[others[k]]}' if agents is not None
                else f'agents {i} and {others[k]}')
         when = f'time {times[tau]:g}' if times is not None else f'step {tau}'
         raise HerdInputError(f'{who} are at the same position at {when}: the interaction '
                              f'f_ij needs a non-zero distance (check for duplicated collars)')
-    e = off / d[..., None]
-    e_over_d = e / d[..., None]
-    # a missing neighbour drops out of the interaction sum
-    e[missing] = 0.0
-    e_over_d[missing] = 0.0
-    return e, e_over_d
+    return e[:, 0], e_over_d[:, 0]
 
 
 def agent_regression(runs, i: int, basis: RbfBasis, dt: float, agents: list[str],
