@@ -4,7 +4,8 @@ import math
 
 import pytest
 
-from herd_ros.estimation.field_choice import CLEAR_FAILURE, choose_space_use, free_run_error
+from herd_ros.estimation.field_choice import (CLEAR_FAILURE, ValidationTail, choose_space_use,
+                                             free_run_error)
 from herd_ros.estimation.herd_fit import fit_herd
 from herd_ros.simulation.herd_simulator import simulate
 from herd_ros.synthesis.known_truth import initial_positions, make_truth_model
@@ -26,8 +27,8 @@ def test_free_run_error_is_the_worst_log_ratio():
 def test_a_known_truth_herd_keeps_its_fitted_field():
     truth = make_truth_model(3, seed=1, grid=(4, 4), bounds=(-75, 75, -75, 75))
     run = simulate(truth, 4000, initial_positions(truth, seed=1, spread=25), seed=2)
-    keep, figures = choose_space_use(
-        [run], lambda runs: fit_herd(runs, grid=(4, 4), bounds=(-75, 75, -75, 75)).model)
+    keep, figures = choose_space_use(ValidationTail(
+        [run], lambda runs: fit_herd(runs, grid=(4, 4), bounds=(-75, 75, -75, 75)).model))
     assert not keep, figures
     assert figures['fitted']['free_run_error'] < CLEAR_FAILURE
 
@@ -36,7 +37,7 @@ def test_a_gaussian_known_truth_keeps_gaussian_noise():
     from herd_ros.estimation.field_choice import choose_noise_regimes
     truth = make_truth_model(3, seed=1, grid=(4, 4), bounds=(-75, 75, -75, 75))
     run = simulate(truth, 4000, initial_positions(truth, seed=1, spread=25), seed=2)
-    keep, figures = choose_noise_regimes(
-        [run], lambda runs: fit_herd(runs, grid=(4, 4), bounds=(-75, 75, -75, 75)).model,
+    keep, figures = choose_noise_regimes(ValidationTail(
+        [run], lambda runs: fit_herd(runs, grid=(4, 4), bounds=(-75, 75, -75, 75)).model),
         space_use=False)
     assert not keep and figures.get('regimes', 1) == 1, figures

@@ -211,15 +211,20 @@ def _long_run_terms(fit, train, args, chosen):
 
     model = fit.model
     positions = [aligned_positions(r, model.agents) for r in train]
-    field = args.field
-    if field == 'auto':
-        from herd_ros.estimation.field_choice import choose_space_use
+    field, noise = args.field, args.noise
+    check = None
+    if 'auto' in (field, noise):
+        # one validation tail for both checks: the chosen structure refitted once
+        from herd_ros.estimation.field_choice import ValidationTail
         from herd_ros.estimation.herd_fit import fit_structure
         sel = chosen['_selection']
-        keep, figures = choose_space_use(train, lambda runs: fit_structure(
+        check = ValidationTail(train, lambda runs: fit_structure(
             runs, sel.chosen, law=sel.law, profile=sel.profile, bounds=sel.bounds,
             min_visits=args.min_visits, se=args.se, own_agents=sel.own_agents,
             own_profile=sel.own_profile).model)
+    if field == 'auto':
+        from herd_ros.estimation.field_choice import choose_space_use
+        keep, figures = choose_space_use(check)
         field = 'space-use' if keep else 'fitted'
         chosen['field_choice'] = figures
         if 'reason' in figures:
@@ -241,15 +246,9 @@ def _long_run_terms(fit, train, args, chosen):
             print(f'space-use field: kernel bandwidth {np.nanmin(h):.2f}-{np.nanmax(h):.2f} m')
         for agent, why in model.meta['space_use_kept_fitted'].items():
             print(f'space-use field: {agent} keeps its fitted field ({why})')
-    noise = args.noise
     if noise == 'auto':
         from herd_ros.estimation.field_choice import choose_noise_regimes
-        from herd_ros.estimation.herd_fit import fit_structure
-        sel = chosen['_selection']
-        keep, figures = choose_noise_regimes(train, lambda runs: fit_structure(
-            runs, sel.chosen, law=sel.law, profile=sel.profile, bounds=sel.bounds,
-            min_visits=args.min_visits, se=args.se, own_agents=sel.own_agents,
-            own_profile=sel.own_profile).model, space_use=field == 'space-use')
+        keep, figures = choose_noise_regimes(check, space_use=field == 'space-use')
         noise = 'regimes' if keep else 'gaussian'
         chosen['noise_choice'] = figures
         if 'reason' in figures:

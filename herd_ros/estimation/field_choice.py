@@ -59,33 +59,56 @@ def free_run_error(result: dict, statistics=SHAPE) -> float:
     return worst
 
 
-def choose_space_use(train, refit, seeds: int = SEEDS) -> tuple[bool, dict]:
+class ValidationTail:
+    """The check's data, made once for both choices: the chosen structure fitted on the
+    first :data:`FIT_FRACTION` of every training run (``model``, by ``refit``: runs ->
+    model), the positions it was fitted on, the tail that judges (``tail``, runs of at
+    least 10 steps; the free runs start from its longest) and, when first asked, the same
+    model with the space-use field (``space_use_model``)."""
+
+    def __init__(self, train, refit):
+        from herd_ros.estimation.herd_fit import aligned_positions, split_runs
+        fit_part, tail = split_runs(train, FIT_FRACTION)
+        self.tail = [r for r in tail if r.n_steps >= 10]
+        self.model = refit(fit_part) if self.tail else None
+        self.positions = ([aligned_positions(r, self.model.agents) for r in fit_part]
+                          if self.tail else [])
+        self._space_use = None
+
+    @property
+    def reason(self) -> str:
+        """Why no choice can be made ('' when it can)."""
+        return '' if self.tail else 'too little training data for a validation tail'
+
+    @property
+    def longest(self):
+        return max(self.tail, key=lambda r: r.n_steps)
+
+    @property
+    def space_use_model(self):
+        if self._space_use is None:
+            from herd_ros.model.space_use_field import with_space_use_field
+            self._space_use = with_space_use_field(self.model, np.concatenate(self.positions))
+        return self._space_use
+
+
+def choose_space_use(check: ValidationTail, seeds: int = SEEDS) -> tuple[bool, dict]:
     """Whether the space-use field earns its place (see the module docstring).
 
-    Args:
-        train: the training runs (HerdTrajectory).
-        refit: ``runs -> model``: the chosen structure fitted on ``runs``.
     Returns:
         (keep, figures) with figures {'fitted'|'space_use': {'one_step', 'free_run_error'}}
         on the validation tail, or (False, {'reason': ...}) when there is too little data.
     """
-    from herd_ros.estimation.herd_fit import aligned_positions, split_runs
-    from herd_ros.model.space_use_field import with_space_use_field
     from herd_ros.simulation.free_run import free_run_fidelity
     from herd_ros.simulation.prediction import one_step_rms
-    fit_part, tail = split_runs(train, FIT_FRACTION)
-    tail = [r for r in tail if r.n_steps >= 10]
-    if not tail:
-        return False, {'reason': 'too little training data for a validation tail'}
-    model = refit(fit_part)
-    positions = np.concatenate([aligned_positions(r, model.agents) for r in fit_part])
-    variants = {'fitted': model, 'space_use': with_space_use_field(model, positions)}
-    longest = max(tail, key=lambda r: r.n_steps)
+    if check.reason:
+        return False, {'reason': check.reason}
     figures = {}
-    for name, m in variants.items():
+    for name, m in (('fitted', check.model), ('space_use', check.space_use_model)):
         figures[name] = {
-            'one_step': float(one_step_rms(m, tail)['model']['herd']),
-            'free_run_error': free_run_error(free_run_fidelity(m, longest, seeds=seeds))}
+            'one_step': float(one_step_rms(m, check.tail)['model']['herd']),
+            'free_run_error': free_run_error(free_run_fidelity(m, check.longest,
+                                                               seeds=seeds))}
     f, s = figures['fitted'], figures['space_use']
     keep = (f['free_run_error'] > CLEAR_FAILURE
             and s['free_run_error'] <= 0.5 * f['free_run_error']
@@ -93,32 +116,24 @@ def choose_space_use(train, refit, seeds: int = SEEDS) -> tuple[bool, dict]:
     return keep, figures
 
 
-def choose_noise_regimes(train, refit, space_use: bool, seeds: int = SEEDS) -> tuple:
-    """Whether noise regimes earn their place (see the module docstring): the law of
-    ``refit`` on the fitted share of ``train`` (with the space-use field when ``space_use``),
-    with Gaussian noise and with regimes, run freely over the validation tail.
+def choose_noise_regimes(check: ValidationTail, space_use: bool, seeds: int = SEEDS) -> tuple:
+    """Whether noise regimes earn their place (see the module docstring): the check's law
+    (with the space-use field when ``space_use``), with Gaussian noise and with regimes,
+    run freely over the validation tail.
 
-    Returns (keep, figures) with figures {'gaussian'|'regimes': {'free_run_error'},
-    'regimes': K}, or (False, {'reason': ...})."""
-    from herd_ros.estimation.herd_fit import aligned_positions, split_runs
+    Returns (keep, figures) with figures {'gaussian'|'regimes': {'free_run_error',
+    'shape_error'}, 'regimes_count': K}, or (False, {'reason': ...})."""
     from herd_ros.model.noise_regimes import with_noise_regimes
-    from herd_ros.model.space_use_field import with_space_use_field
     from herd_ros.simulation.free_run import STATISTICS, free_run_fidelity
-    fit_part, tail = split_runs(train, FIT_FRACTION)
-    tail = [r for r in tail if r.n_steps >= 10]
-    if not tail:
-        return False, {'reason': 'too little training data for a validation tail'}
-    model = refit(fit_part)
-    positions = [aligned_positions(r, model.agents) for r in fit_part]
-    if space_use:
-        model = with_space_use_field(model, np.concatenate(positions))
-    regimes, info = with_noise_regimes(model, positions)
+    if check.reason:
+        return False, {'reason': check.reason}
+    model = check.space_use_model if space_use else check.model
+    regimes, info = with_noise_regimes(model, check.positions)
     if info['n_regimes'] == 1:
         return False, {'reason': 'BIC keeps one noise level', 'regimes': 1}
-    longest = max(tail, key=lambda r: r.n_steps)
     figures = {'regimes_count': int(info['n_regimes'])}
     for name, m in (('gaussian', model), ('regimes', regimes)):
-        result = free_run_fidelity(m, longest, seeds=seeds)
+        result = free_run_fidelity(m, check.longest, seeds=seeds)
         figures[name] = {'free_run_error': free_run_error(result, STATISTICS),
                          'shape_error': free_run_error(result, SHAPE)}
     g, r = figures['gaussian'], figures['regimes']

@@ -18,6 +18,9 @@ and the median's relative difference to the data's.
 """
 from __future__ import annotations
 
+import contextlib
+import warnings
+
 import numpy as np
 
 from herd_ros.trajectory import HerdTrajectory
@@ -38,7 +41,7 @@ def shape_and_pace(positions: np.ndarray, dt: float, pace_window_s: float = PACE
     T, n = p.shape[:2]
     d = np.sqrt(((p[:, None] - p[:, :, None]) ** 2).sum(-1))            # (T, N, N)
     d[:, np.arange(n), np.arange(n)] = np.nan
-    with np.errstate(invalid='ignore'), _quiet():
+    with _quiet():
         mean_d = np.nanmean(d, axis=2)                                  # (T, N)
         distance = np.nanmean(mean_d, axis=0)
         spread = np.nanstd(mean_d, axis=0)
@@ -53,17 +56,12 @@ def shape_and_pace(positions: np.ndarray, dt: float, pace_window_s: float = PACE
             'mean_speed': mean_speed, 'std_speed': std_speed}
 
 
-class _quiet:
+@contextlib.contextmanager
+def _quiet():
     """numpy's "mean of empty slice" warnings off (an animal absent throughout is NaN)."""
-
-    def __enter__(self):
-        import warnings
-        self._w = warnings.catch_warnings()
-        self._w.__enter__()
+    with warnings.catch_warnings():
         warnings.simplefilter('ignore', RuntimeWarning)
-
-    def __exit__(self, *exc):
-        return self._w.__exit__(*exc)
+        yield
 
 
 def free_run_fidelity(model, run: HerdTrajectory, seeds: int = SEEDS) -> dict:
