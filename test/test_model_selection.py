@@ -12,11 +12,10 @@ import pytest
 from conftest import REPO
 from herd_ros.data_sources import load_runs
 from herd_ros.estimation.herd_fit import aligned_positions, fit_structure, split_runs
-from herd_ros.estimation.model_selection import (Structure, agent_samples, select_model,
-                                                 shared_columns)
+from herd_ros.estimation.model_selection import Structure, agent_samples, select_model
 from herd_ros.model.model_file import load_model, save_model
 from herd_ros.model.rbf_field import FieldGrid, RbfBasis
-from herd_ros.model.shared_law import DistanceProfile, shared_rows
+from herd_ros.model.shared_law import DistanceProfile, shared_columns, shared_rows
 from herd_ros.simulation.herd_simulator import simulate
 from herd_ros.simulation.prediction import noise_level, predict_ahead, prediction_covariance
 from herd_ros.synthesis.known_truth import initial_positions, make_truth_model
@@ -36,7 +35,7 @@ def test_shared_columns_equal_the_online_estimators_rows():
     pt = rng.uniform(-40, 40, size=(25, 7, 2))
     pt[3, 2] = np.nan                                   # a missing neighbour drops out
     for i in range(7):
-        cols = shared_columns(pt, i, profile)
+        cols = shared_columns(pt, i, profile)[0][:, 0]
         for k in range(len(pt)):
             if not np.isfinite(pt[k, i]).all():
                 continue

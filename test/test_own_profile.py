@@ -8,11 +8,11 @@ import yaml
 from herd_ros.cli.main import main
 from herd_ros.control.herd_follower import robot_shared_model
 from herd_ros.estimation.herd_fit import aligned_positions, fit_structure, split_runs
-from herd_ros.estimation.model_selection import shared_columns, select_model
+from herd_ros.estimation.model_selection import select_model
 from herd_ros.model.kinds import load as load_any_model
 from herd_ros.model.rbf_field import RbfBasis
-from herd_ros.model.shared_law import (DistanceProfile, interaction_features, own_features,
-                                       save_shared_model, shared_rows)
+from herd_ros.model.shared_law import (DistanceProfile, interaction_features,
+                                       save_shared_model, shared_columns, shared_rows)
 from herd_ros.simulation.herd_simulator import simulate
 from herd_ros.synthesis.known_truth import make_driven_truth
 from herd_ros.trajectory import write_trajectory_csv
@@ -38,22 +38,23 @@ def test_features_by_hand_dog_left_out_of_the_pooled_sum():
     # the dog feels both sheep through the pooled profile
     dog = np.outer(psi(POOLED, 4.0), [0, -1]) + np.outer(psi(POOLED, 5.0), [0.6, -0.8])
     np.testing.assert_allclose(inter[2], dog, atol=1e-15)
-    h, ok = own_features(p, [2], OWN)
-    assert h.shape == (3, 1, 2, 2) and ok.all()
+    cols, coincident = shared_columns(p[None], [0, 1, 2], POOLED, [2], OWN)
+    h = cols[0, :, 3:].reshape(3, 1, 2, 2)                    # the dog's own block
+    assert not coincident.any()
     np.testing.assert_allclose(h[0, 0], np.outer(psi(OWN, 4.0), [0, 1]), atol=1e-15)
     np.testing.assert_allclose(h[1, 0], np.outer(psi(OWN, 5.0), [-0.6, 0.8]), atol=1e-15)
     np.testing.assert_allclose(h[2, 0], 0.0)                  # the dog and itself
     # a missing dog drops out of everything
     q = p.copy()
     q[2] = np.nan
-    h, ok = own_features(q, [2], OWN)
-    assert np.all(h[:2] == 0)
+    cols, _ = shared_columns(q[None], [0, 1, 2], POOLED, [2], OWN)
+    assert np.all(cols[0, :2, 3:] == 0)
     # the regression rows of the node path and the vectorised columns of the fit agree
     H, valid = shared_rows(p, p + 0.1, 1.0, POOLED, RbfBasis(np.zeros((1, 2)), np.ones(1)),
                            own=[2], own_profile=OWN)
     assert H.shape == (3, 2, 1 + 3 + 2 + 2) and valid.all()
     for i in range(3):
-        cols = shared_columns(p[None], i, POOLED, [2], OWN)[0]      # (B + B', 2)
+        cols = shared_columns(p[None], i, POOLED, [2], OWN)[0][0, 0]   # (B + B', 2)
         np.testing.assert_allclose(H[i, 0, 1:6], cols[:, 0], atol=1e-15)
         np.testing.assert_allclose(H[i, 1, 1:6], cols[:, 1], atol=1e-15)
 

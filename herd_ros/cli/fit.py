@@ -10,13 +10,11 @@ from herd_ros.cli.common import parse_floats, parse_grid, progress
 from herd_ros.cli.ingest import add_filter_arguments, filter_kwargs
 from herd_ros.data_sources import load_runs
 from herd_ros.errors import HerdInputError
-from herd_ros.estimation.herd_fit import aligned_positions, fit_structure, split_runs
+from herd_ros.estimation.herd_fit import split_runs
 from herd_ros.estimation.model_selection import (FIELD_CELLS, FOLDS, MEMORIES,
-                                                 PAIRWISE_MAX_AGENTS,
-                                                 RIDGES, TERMS, select_model)
-from herd_ros.estimation.validation import skill_lines, validate
-from herd_ros.model import kinds
-from herd_ros.model.model_file import selection_entry
+                                                 PAIRWISE_MAX_AGENTS, RIDGES, TERMS)
+from herd_ros.estimation.validation import skill_lines
+from herd_ros.herd_dynamics import FitOptions, HerdDynamics
 from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS
 from herd_ros.model.velocity_memory import check_memory
 
@@ -73,6 +71,16 @@ def add_arguments(p):
                         'BIC (for animals that rest and move in bursts); auto = regimes when, '
                         'on a validation tail of the training data, they make the law run '
                         'freely clearly closer to the herd (every statistic), else gaussian')
+    p.add_argument('--alignment', choices=('auto', 'off', 'on'), default='auto',
+                   help='velocity alignment: each agent matches its neighbours\' velocity '
+                        'with a learned distance kernel; auto = tried on the chosen '
+                        'structure and kept only if cross-validation does')
+    p.add_argument('--alignment-neighbourhood', choices=('radius', 'nearest'),
+                   default='radius',
+                   help='the neighbours an agent aligns with: every one within the radius '
+                        '(4 x the typical spacing), or the K nearest within it')
+    p.add_argument('--alignment-nearest', type=int, default=7, metavar='K',
+                   help='K of --alignment-neighbourhood nearest')
     p.add_argument('--seed', type=int, default=0, help='seed of the validation simulation')
     p.add_argument('--online', action='store_true',
                    help='recursive least squares over the whole file (the estimator node\'s '
@@ -139,7 +147,7 @@ def run(args) -> int:
         raise HerdInputError('--interact-with-own-profile needs the shared law (the pairwise '
                              'law already gives every pair its own parameters)')
     memory, memories = _memories(args)
-    if args.online and (args.field != 'fitted' or args.noise != 'gaussian'):
+    if args.online and (args.field == 'space-use' or args.noise == 'regimes'):
         raise HerdInputError('--field space-use and --noise regimes are for the batch fit')
     if args.online and args.velocity_memory != 'auto':
         raise HerdInputError('--velocity-memory is for the batch fit; the online estimator '
@@ -156,35 +164,24 @@ def run(args) -> int:
     runs, datum = load_runs(args.data, dt=args.dt, smoother=args.smoother,
                            **filter_kwargs(args))
     train, test = split_runs(runs, args.train_fraction)
-    agents = list(runs[0].agents)
-    # a shared-law herd may get a second pass (a nominated driver): count, no fixed total
-    bar = progress(total=None if len(agents) > PAIRWISE_MAX_AGENTS or own_agents else
-                   len(agents) * (1 + bool(memories)), desc='cross-validating', unit='agent')
-    selection = select_model([aligned_positions(r, agents) for r in train], agents,
-                             train[0].dt, folds=args.folds, ridges=ridges, grids=grids,
-                             terms=terms, bounds=bounds, min_visits=args.min_visits,
-                             law=None if args.law == 'auto' else args.law,
-                             own_agents=own_agents, progress=lambda a: bar.update(1),
-                             memory=memory, memories=memories)
-    bar.close()
-    bar = progress(total=len(agents), desc='fitting agents', unit='agent')
-    fit = fit_structure(train, selection.chosen, law=selection.law, profile=selection.profile,
-                        bounds=selection.bounds, min_visits=args.min_visits, se=args.se,
-                        datum=datum, progress=lambda a: bar.update(1),
-                        robust=args.loss == 'robust', own_agents=selection.own_agents,
-                        own_profile=selection.own_profile)
-    bar.close()
-    chosen = selection.as_dict()
-    chosen['loss'] = args.loss
-    chosen['_selection'] = selection
-    fit = _long_run_terms(fit, train, args, chosen)
-    chosen.pop('_selection')
-    kinds.save(fit.model, args.output, selection=selection_entry(chosen))
-    summary = validate(fit, train, test, seed=args.seed)
-    summary['selection'] = chosen
+    options = FitOptions(terms=terms, grids=grids, bounds=bounds, ridges=ridges, memory=memory,
+                         memories=memories, law=None if args.law == 'auto' else args.law,
+                         own_agents=own_agents, field=args.field, noise=args.noise,
+                         robust=args.loss == 'robust', se=args.se, folds=args.folds,
+                         min_visits=args.min_visits, alignment=args.alignment,
+                         alignment_neighbourhood=args.alignment_neighbourhood,
+                         alignment_nearest=args.alignment_nearest)
+    dyn = HerdDynamics(options=options).fit(train, datum=datum, seed=args.seed,
+                                            progress=progress,
+                                            log=lambda line: print(line, flush=True))
+    dyn.save(args.output)
+    fit, selection = dyn.fit_result, dyn.selection
+    summary = dyn.score(test, train=train, seed=args.seed)
+    summary['selection'] = dyn.choices
     _print_selection(selection, train[0].dt)
     print('\n'.join(skill_lines(summary)))
     _print_summary(fit, summary, args)
+    _print_alignment(fit.model)
     for agent, entry in summary['agents'].items():
         if entry.get('constrained'):
             print(f'stability: {agent}: {entry["constrained"]}')
@@ -204,74 +201,6 @@ def run(args) -> int:
     return 0
 
 
-def _long_run_terms(fit, train, args, chosen):
-    """``--field space-use`` and ``--noise regimes`` on the fitted model (recorded in
-    ``chosen``)."""
-    import dataclasses
-
-    model = fit.model
-    positions = [aligned_positions(r, model.agents) for r in train]
-    field, noise = args.field, args.noise
-    check = None
-    if 'auto' in (field, noise):
-        # one validation tail for both checks: the chosen structure refitted once
-        from herd_ros.estimation.field_choice import ValidationTail
-        from herd_ros.estimation.herd_fit import fit_structure
-        sel = chosen['_selection']
-        check = ValidationTail(train, lambda runs: fit_structure(
-            runs, sel.chosen, law=sel.law, profile=sel.profile, bounds=sel.bounds,
-            min_visits=args.min_visits, se=args.se, own_agents=sel.own_agents,
-            own_profile=sel.own_profile).model)
-    if field == 'auto':
-        from herd_ros.estimation.field_choice import choose_space_use
-        keep, figures = choose_space_use(check)
-        field = 'space-use' if keep else 'fitted'
-        chosen['field_choice'] = figures
-        if 'reason' in figures:
-            print(f'field: fitted ({figures["reason"]})')
-        else:
-            f, s_ = figures['fitted'], figures['space_use']
-            print(f'field: {field} (validation tail of the training data: free-run error '
-                  f'{s_["free_run_error"]:.2f} with space-use vs {f["free_run_error"]:.2f} '
-                  f'fitted, one-step RMS {s_["one_step"]:.4f} vs {f["one_step"]:.4f})')
-    if field == 'space-use':
-        from herd_ros.model.space_use_field import with_space_use_field
-        bar = progress(total=model.n_agents, desc='space-use field', unit='agent')
-        model = with_space_use_field(model, np.concatenate(positions),
-                                     progress=lambda n: bar.update(n))
-        bar.close()
-        chosen['field'] = 'space-use'
-        h = model.meta['space_use_bandwidth']
-        if np.isfinite(h).any():
-            print(f'space-use field: kernel bandwidth {np.nanmin(h):.2f}-{np.nanmax(h):.2f} m')
-        for agent, why in model.meta['space_use_kept_fitted'].items():
-            print(f'space-use field: {agent} keeps its fitted field ({why})')
-    if noise == 'auto':
-        from herd_ros.estimation.field_choice import choose_noise_regimes
-        keep, figures = choose_noise_regimes(check, space_use=field == 'space-use')
-        noise = 'regimes' if keep else 'gaussian'
-        chosen['noise_choice'] = figures
-        if 'reason' in figures:
-            print(f'noise: gaussian ({figures["reason"]})')
-        else:
-            r, g = figures['regimes'], figures['gaussian']
-            print(f'noise: {noise} (validation tail of the training data, free-run error '
-                  f'with {figures["regimes_count"]} regimes vs gaussian: all statistics '
-                  f'{r["free_run_error"]:.2f} vs {g["free_run_error"]:.2f}, shape '
-                  f'{r["shape_error"]:.2f} vs {g["shape_error"]:.2f})')
-    if noise == 'regimes':
-        from herd_ros.model.noise_regimes import with_noise_regimes
-        print('noise regimes: fitting 1-3 regimes per agent (Baum-Welch) ...', flush=True)
-        model, regimes = with_noise_regimes(model, positions)
-        chosen['noise_regimes'] = regimes['n_regimes']
-        print(f'noise regimes: BIC keeps {regimes["n_regimes"]} (' + ', '.join(
-            f'K={k}: {v:.0f}' for k, v in sorted(regimes['bic'].items())) + ')')
-        if regimes['n_regimes'] > 1 and regimes['too_few']:
-            print('noise regimes: too few residuals, Gaussian noise kept for ' + ', '.join(
-                model.agents[i] for i in regimes['too_few']))
-    return dataclasses.replace(fit, model=model) if model is not fit.model else fit
-
-
 def _print_statistics(statistics: dict, agents) -> None:
     """The law simulated freely over the training span against the training data (herd
     means of the per-agent statistics, Schwager et al. 2007 Fig. 6)."""
@@ -285,6 +214,21 @@ def _print_statistics(statistics: dict, agents) -> None:
         cells.append(f'{k.replace("_", " ")} {got:.3g} vs {want:.3g} ({rel:+.0f} %)')
     print('simulated herd vs training data (herd means; the law run freely from the first '
           'step):\n  ' + '; '.join(cells))
+
+
+def _print_alignment(model) -> None:
+    """The fitted alignment kernel of the herd (mean weights) at its bumps, with the
+    standard error of the mean."""
+    al = model.alignment
+    if al is None:
+        return
+    k = al.kernel
+    centres = np.asarray(k.profile.centers)
+    herd = al.coef.mean(axis=0)
+    se = np.sqrt((al.se ** 2).sum(axis=0)) / len(al.coef) if al.se is not None else None
+    cells = ', '.join(f'{c:.0f} m: {w:+.3f}' + (f' ± {s:.3f}' if se is not None else '')
+                      for c, w, s in zip(centres, herd, se if se is not None else herd))
+    print(f'alignment ({k.describe()}): herd kernel weights at the bumps {cells}')
 
 
 def _print_selection(selection, dt, rows: int = 8):

@@ -24,9 +24,18 @@ def run_online(args) -> int:
     runs, datum = load_runs(args.data, dt=args.dt, smoother=args.smoother)
     bar = progress(total=sum(r.n_steps for r in runs), desc='recursive least squares',
                    unit='step')
+    extra = {}
+    if getattr(args, 'alignment', 'off') == 'on':     # the selection's default kernel
+        from herd_ros.estimation.herd_fit import aligned_positions
+        from herd_ros.estimation.model_selection import default_alignment
+        k = default_alignment([aligned_positions(r, list(runs[0].agents)) for r in runs])
+        extra = dict(alignment=True, alignment_radius=k.profile.radius,
+                     alignment_size=k.size, alignment_neighbourhood=args.alignment_neighbourhood,
+                     alignment_nearest=args.alignment_nearest)
     result = online_fit(runs, law=args.law, grid=grid, bounds=bounds,
                         forgetting=args.forgetting, min_visits=args.min_visits,
-                        progress=bar.update, robust=getattr(args, 'loss', 'l2') == 'robust')
+                        progress=bar.update, robust=getattr(args, 'loss', 'l2') == 'robust',
+                        **extra)
     bar.close()
     est = result.estimator
     est.save_model(args.output, datum=datum)

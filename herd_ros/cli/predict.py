@@ -15,10 +15,9 @@ import pandas as pd
 
 from herd_ros.data_sources import is_trajectory_csv, load_runs
 from herd_ros.errors import HerdInputError
-from herd_ros.model import kinds
+from herd_ros.herd_dynamics import HerdDynamics
 from herd_ros.model.model_file import write_atomic
-from herd_ros.simulation.prediction import (CHI2_2_90, noise_level, predict_ahead,
-                                            prediction_covariance)
+from herd_ros.simulation.prediction import CHI2_2_90
 
 HELP = 'predict every agent K steps ahead with a model file, with the covariance'
 
@@ -55,18 +54,17 @@ def _runs_for(model, path):
 def run(args) -> int:
     if args.steps < 1:
         raise HerdInputError(f'--steps must be at least 1, got {args.steps}')
-    model = kinds.load(args.model)
-    cov = prediction_covariance(model, args.steps)                  # (N, 2, 2)
+    dyn = HerdDynamics.load(args.model)
+    model = dyn.model
     runs = _runs_for(model, args.data)
     frames = []
     hits = total = 0
     sq = 0.0
     for r, p in runs:
-        pred = predict_ahead(model, p, args.steps)
-        level = noise_level(model, p, args.steps)                    # (T, N)
+        pred, cov = dyn.predict(p, args.steps, return_cov=True)     # (T, N, 2), (T, N, 2, 2)
         ok = np.isfinite(pred).all(-1)                               # (T, N)
         tt, ii = np.nonzero(ok)
-        c = cov[ii] * level[tt, ii][:, None, None]
+        c = cov[tt, ii]
         frame = pd.DataFrame({
             'time': r.times[tt], 'agent': np.asarray(model.agents, dtype=object)[ii],
             'x': pred[tt, ii, 0], 'y': pred[tt, ii, 1],
@@ -79,7 +77,7 @@ def run(args) -> int:
         if seen.any():
             tt, ii = np.nonzero(seen)
             e = p[tt, ii] - pred[tt, ii]
-            c = cov[ii] * level[tt, ii][:, None, None]
+            c = cov[tt, ii]
             m2 = np.einsum('mi,mij,mj->m', e, np.linalg.pinv(c), e)
             hits += int((m2 <= CHI2_2_90).sum())
             sq += float((e ** 2).sum())

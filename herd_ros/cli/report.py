@@ -4,13 +4,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
 from herd_ros.data_sources import load_runs
-from herd_ros.estimation.herd_fit import HerdFit
-from herd_ros.estimation.validation import skill_lines, validate
-from herd_ros.model import kinds
-from herd_ros.model.rbf_field import FieldGrid
+from herd_ros.estimation.validation import skill_lines
+from herd_ros.herd_dynamics import HerdDynamics
 
 HELP = 'figures (paper Figs. 2-6) and summary.json of a model file on a data file'
 
@@ -25,13 +21,10 @@ def add_arguments(p):
 
 def run(args) -> int:
     from herd_ros.report.fit_figures import write_fit_figures
-    model = kinds.load(args.model)
-    runs, _ = load_runs(args.data, dt=args.dt or model.dt)
-    pts = np.concatenate([r.positions.reshape(-1, 2) for r in runs])
-    grid = FieldGrid.over(pts[np.isfinite(pts).all(-1)], 8, 8)
-    fit = HerdFit(model=model, fits={}, grid=grid)
-    summary = validate(fit, runs, runs, seed=args.seed)
-    paths = write_fit_figures(fit, summary, runs, args.out)
+    dyn = HerdDynamics.load(args.model)
+    runs, _ = load_runs(args.data, dt=args.dt or dyn.model.dt)
+    summary = dyn.score(runs, seed=args.seed)
+    paths = write_fit_figures(dyn.report_fit(runs), summary, runs, args.out)
     public = {k: v for k, v in summary.items() if not k.startswith('_')}
     public['figures'] = [p.name for p in paths]
     (Path(args.out) / 'summary.json').write_text(json.dumps(public, indent=1))

@@ -6,8 +6,8 @@ import numpy as np
 from herd_ros.cli.common import progress
 from herd_ros.data_sources import load_runs
 from herd_ros.errors import HerdInputError
-from herd_ros.model import kinds
-from herd_ros.simulation.herd_simulator import first_pairs, simulate
+from herd_ros.herd_dynamics import HerdDynamics
+from herd_ros.simulation.herd_simulator import first_pairs
 from herd_ros.simulation.statistics import herd_statistics
 from herd_ros.trajectory import write_trajectory_csv
 
@@ -55,7 +55,8 @@ def first_state(p: np.ndarray, dt: float, source) -> tuple[np.ndarray, np.ndarra
 def run(args) -> int:
     if args.steps < 2:
         raise HerdInputError(f'--steps must be at least 2, got {args.steps}')
-    model = kinds.load(args.model)
+    dyn = HerdDynamics.load(args.model)
+    model = dyn.model
     u0 = None
     if args.initial:
         runs, _ = load_runs(args.initial)
@@ -68,8 +69,8 @@ def run(args) -> int:
     else:
         p0 = default_initial_positions(model, args.seed)
     bar = progress(total=args.steps, desc='simulating', unit='step')
-    traj = simulate(model, args.steps, p0, u0, seed=args.seed, noise=not args.no_noise,
-                    progress=bar.update)
+    traj = dyn.simulate(p0, args.steps, u0, seed=args.seed, noise=not args.no_noise,
+                        progress=bar.update)
     bar.close()
     write_trajectory_csv(args.output, traj)
     stats = herd_statistics(traj)

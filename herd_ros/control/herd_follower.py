@@ -71,6 +71,15 @@ def _robot_meta(model, index) -> dict:
             **subset_regimes(model.meta, index), **subset_home(model.meta, index)}
 
 
+def _robot_alignment(model, index):
+    """The robots' alignment: each robot its animal's kernel weights (none without)."""
+    al = getattr(model, 'alignment', None)
+    if al is None:
+        return None
+    from herd_ros.model.alignment import VelocityAlignment
+    return VelocityAlignment(al.kernel, al.coef[np.asarray(index)])
+
+
 def robot_herd_model(model: HerdModel, assignment: list[str],
                      robots: list[str] | None = None) -> HerdModel:
     """A :class:`HerdModel` over robots: robot k carries the law of animal ``assignment[k]``.
@@ -98,8 +107,8 @@ def robot_herd_model(model: HerdModel, assignment: list[str],
                                field_u=law.field_u, field_v=law.field_v,
                                noise_cov=law.noise_cov)
     return HerdModel(agents=robots, dt=model.dt, laws=laws, frame_id=model.frame_id,
-                     datum=model.datum,
-                     meta=_robot_meta(model, index))
+                     datum=model.datum, meta=_robot_meta(model, index),
+                     alignment=_robot_alignment(model, index))
 
 
 class HerdFollower:
@@ -140,11 +149,24 @@ class HerdFollower:
         interaction = (magnitude[..., None] * np.nan_to_num(unit)).sum(-2)
         return interaction + self.model.environment(p_safe)
 
+    def alignment(self, positions: np.ndarray, velocity: np.ndarray,
+                  active: np.ndarray | None = None):
+        """A_k of every robot (the velocity alignment its animal learned,
+        :mod:`herd_ros.model.alignment`) toward the other active robots; 0 without one."""
+        al = self.model.alignment
+        if al is None:
+            return 0.0
+        p = np.asarray(positions, dtype=float).reshape(-1, 2)
+        active = np.ones(len(p), bool) if active is None else np.asarray(active, bool)
+        p = np.where((active & np.isfinite(p).all(-1))[:, None], p, np.nan)
+        return np.nan_to_num(al.acceleration(p, velocity))
+
     def advance(self, velocity: np.ndarray, positions: np.ndarray, elapsed: float,
                 active: np.ndarray | None = None) -> np.ndarray:
         """New velocities (R, 2) after ``elapsed`` seconds of the law from u (R, 2) at p (R, 2).
 
-        u ← u + α[(a − 1)u + Σf + g] + √α L ξ in ⌈α⌉ sub-steps, α = elapsed/Δt (module doc);
+        u ← u + α[(a − 1)u + Σf + g + A] + √α L ξ in ⌈α⌉ sub-steps, α = elapsed/Δt (module
+        doc; A the velocity alignment toward the other robots when the law has one);
         with a velocity memory κ < 1, u ← u + α[a ū − u + Σf + g] and ū ← ū + α κ (u − ū),
         ū carried from tick to tick.
         """
@@ -161,7 +183,8 @@ class HerdFollower:
         for _ in range(steps):
             damped = ((self.damping[:, None] - 1.0) * u if plain
                       else self.damping[:, None] * mean - u)         # a ū − u
-            change = beta * (damped + self.drift(p, active))
+            change = beta * (damped + self.drift(p, active)
+                             + self.alignment(p, u if plain else mean, active))
             if self.noise:
                 change += self.noise_source.draw(beta)
             p = p + beta * self.dt * u
@@ -297,8 +320,8 @@ def robot_shared_model(model, assignment: list[str], robots: list[str] | None = 
                           field_u=[model.field_u[i] for i in idx],
                           field_v=[model.field_v[i] for i in idx],
                           noise_cov=model.noise_cov[idx], frame_id=model.frame_id,
-                          datum=model.datum,
-                          meta=_robot_meta(model, idx))
+                          datum=model.datum, meta=_robot_meta(model, idx),
+                          alignment=_robot_alignment(model, idx))
 
 
 class SharedLawFollower(HerdFollower):

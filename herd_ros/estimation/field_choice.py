@@ -113,6 +113,7 @@ def choose_space_use(check: ValidationTail, seeds: int = SEEDS) -> tuple[bool, d
     keep = (f['free_run_error'] > CLEAR_FAILURE
             and s['free_run_error'] <= 0.5 * f['free_run_error']
             and s['one_step'] <= (1.0 + ONE_STEP_TOLERANCE) * f['one_step'])
+    figures['kept'] = bool(keep)
     return keep, figures
 
 
@@ -139,4 +140,28 @@ def choose_noise_regimes(check: ValidationTail, space_use: bool, seeds: int = SE
     g, r = figures['gaussian'], figures['regimes']
     keep = (r['free_run_error'] < REGIMES_GAIN * g['free_run_error']
             and r['shape_error'] <= SHAPE_SLACK * g['shape_error'])
+    figures['kept'] = bool(keep)
     return keep, figures
+
+
+
+def describe_choice(name: str, figures: dict) -> str:
+    """One line: what :func:`choose_space_use` (``name`` 'field') or
+    :func:`choose_noise_regimes` ('noise') kept (from its figures), and why."""
+    field = name == 'field'
+    name, plain, extra = ('field', 'fitted', 'space-use') if field else \
+        ('noise', 'gaussian', 'regimes')
+    if 'reason' in figures:
+        return f'{name}: {plain} ({figures["reason"]})'
+    kept = extra if figures.get('kept') else plain
+    if field:
+        f, s = figures['fitted'], figures['space_use']
+        why = (f'free-run error {s["free_run_error"]:.2f} with space-use vs '
+               f'{f["free_run_error"]:.2f} fitted, one-step RMS {s["one_step"]:.4f} vs '
+               f'{f["one_step"]:.4f}')
+    else:
+        r, g = figures['regimes'], figures['gaussian']
+        why = (f'free-run error with {figures["regimes_count"]} regimes vs gaussian: all '
+               f'statistics {r["free_run_error"]:.2f} vs {g["free_run_error"]:.2f}, shape '
+               f'{r["shape_error"]:.2f} vs {g["shape_error"]:.2f}')
+    return f'{name}: {kept} (validation tail of the training data: {why})'

@@ -149,6 +149,7 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
     from herd_ros.estimation.model_selection import check_own_agents, structured_regression
     from herd_ros.estimation.robust import fit_agent_robust
     from herd_ros.simulation.prediction import calibrate_prediction_scale
+    from herd_ros.model.alignment import VelocityAlignment
     from herd_ros.model.shared_law import SharedLawModel
 
     agents, dt = check_runs(runs)
@@ -166,6 +167,8 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
     if own and own_profile is None:
         raise HerdInputError('own-profile agents need their profile basis (own_profile)')
     laws, fits, bases, out = {}, {}, [], []
+    n_align = structure.alignment.size if getattr(structure, 'alignment', None) else 0
+    align_w, align_se, align_cov = [], [], []
     for i, a in enumerate(agents):
         if field_grid is not None:
             visited = np.concatenate([p[:-2, i, :] for p in positions if p.shape[0] >= 3])
@@ -187,6 +190,15 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
             th = np.insert(th, at, np.zeros(own_profile.size))
             sd = np.insert(sd, at, np.zeros(own_profile.size))
             pa += own_profile.size
+        if n_align:
+            # the alignment weights (the last columns before the field) into their own term
+            align_w.append(th[pa - n_align:pa])
+            align_se.append(sd[pa - n_align:pa])
+            at = pa - n_align - (own_profile.size if i in own else 0)   # in the fit's θ
+            align_cov.append(fit.theta_cov[at:at + n_align, at:at + n_align])
+            th = np.delete(th, np.s_[pa - n_align:pa])
+            sd = np.delete(sd, np.s_[pa - n_align:pa])
+            pa -= n_align
         if K == 0:
             # no field: one centre with zero weight (a ROS parameter array cannot be empty)
             basis, K = _null_basis(bounds), 1
@@ -220,6 +232,9 @@ def fit_structure(runs: list[HerdTrajectory], structure, law: str = 'pairwise',
             theta_se=[o[1] for o in out], frame_id=frame_id, datum=datum)
     else:
         model = HerdModel(agents=agents, dt=dt, laws=laws, frame_id=frame_id, datum=datum)
+    if n_align:
+        model.alignment = VelocityAlignment(structure.alignment, np.array(align_w),
+                                            np.array(align_se), np.array(align_cov))
     memory = np.atleast_1d(np.asarray(getattr(structure, 'memory', 1.0), dtype=float))
     if (memory != 1.0).any():
         model.meta['velocity_memory'] = float(memory[0]) if len(memory) == 1 else memory

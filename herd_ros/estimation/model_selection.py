@@ -58,9 +58,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from herd_ros.errors import HerdInputError
+from herd_ros.model.alignment import AlignmentKernel
 from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS, FieldGrid, RbfBasis
 from herd_ros.model.regressors import AgentRegression, interaction_columns, velocities
-from herd_ros.model.shared_law import DEFAULT_PROFILE_SIZE, DistanceProfile
+from herd_ros.model.shared_law import DEFAULT_PROFILE_SIZE, DistanceProfile, shared_columns
 from herd_ros.model.velocity_memory import check_memory, memory_velocities
 
 #: Up to this many agents the interactions are the paper's pairwise law; more get the
@@ -94,10 +95,12 @@ class Structure:
     own: tuple = ()
     own_profile: DistanceProfile | None = None
     memory: float | tuple = 1.0  # velocity memory κ (1: the paper's u^τ), or one per agent
+    alignment: AlignmentKernel | None = None   # velocity alignment (:mod:`alignment`)
 
     @property
     def terms(self) -> str:
         return 'damping' + ('+interactions' if self.interactions else '') + \
+            ('+alignment' if self.alignment is not None else '') + \
             ('+field' if self.grid is not None else '')
 
     def label(self) -> str:
@@ -140,6 +143,7 @@ class Selection:
             'ridge': float(c.ridge), 'interaction_law': self.law if c.interactions else '',
             'velocity_memory': (list(c.memory) if isinstance(c.memory, tuple)
                                 else float(c.memory)),
+            'alignment': c.alignment.describe() if c.alignment is not None else '',
             'own_profile_agents': list(self.own_agents) if c.interactions else [],
             'field_bounds': [float(b) for b in self.bounds],
             'held_out_samples': {'scored': int(self.samples),
@@ -156,35 +160,6 @@ class Selection:
 
 
 # -- regression samples ----------------------------------------------------------------
-def shared_columns(pt: np.ndarray, i: int, profile: DistanceProfile, own=(),
-                   own_profile: DistanceProfile | None = None) -> np.ndarray:
-    """Σ_{j: d_ij < r} ψ_b(d_ij) e_ij of agent i at every step: pt (M, N, 2) -> (M, B, 2),
-    then, per distinguished agent k of ``own``, ψ'_b(d_ik) e_ik: (M, B + S·B', 2).
-
-    The shared law's interaction regressors (:func:`herd_ros.model.shared_law.shared_rows`),
-    vectorised over time; a missing neighbour (NaN) drops out; the distinguished agents are
-    left out of the pooled sum, and agent i's block with itself is zero."""
-    def columns(others, basis):
-        off = pt[:, others, :] - pt[:, i:i + 1, :]
-        d = np.sqrt((off ** 2).sum(-1))
-        ok = np.isfinite(d) & (d > 0)
-        with np.errstate(invalid='ignore', divide='ignore'):
-            e = np.where(ok[..., None], off / np.where(ok, d, 1.0)[..., None], 0.0)
-        psi = basis.features(np.where(ok, d, np.inf))      # (M, J, B), 0 beyond r
-        return psi, e
-
-    own = [int(k) for k in own]
-    pooled = [j for j in range(pt.shape[1]) if j != i and j not in own]
-    psi, e = columns(pooled, profile)
-    out = [np.einsum('mjb,mjk->mbk', psi, e)]
-    if own:
-        psi, e = columns(own, own_profile)                 # (M, S, B'), (M, S, 2)
-        if i in own:
-            psi[:, own.index(i)] = 0.0
-        out.append((psi[..., None] * e[:, :, None, :]).reshape(pt.shape[0], -1, 2))
-    return np.concatenate(out, axis=1)
-
-
 def own_profile_radius(runs_positions, own, floor: float) -> float:
     """r' of the distinguished agents' profile: 1.5 × the 95th percentile of their distance
     to the others (≤ 2000 steps), at least ``floor`` (the shared law's radius). An agent
@@ -203,13 +178,17 @@ def own_profile_radius(runs_positions, own, floor: float) -> float:
 
 def agent_samples(positions: np.ndarray, i: int, dt: float, law: str,
                   profile: DistanceProfile | None, own=(),
-                  own_profile: DistanceProfile | None = None, memory: float = 1.0):
+                  own_profile: DistanceProfile | None = None, memory: float = 1.0,
+                  alignment: AlignmentKernel | None = None, herd_memory=None):
     """The damping/interaction columns of agent i over one run (see :mod:`regressors`).
 
-    Returns (A_x, A_y, y_x, y_y, points) with A = [ū, interaction columns…] (ū the
-    velocity with memory κ = ``memory``, u itself at 1; pairwise: e, −e/d per neighbour;
-    shared: the B profile columns, then S·B' of the distinguished agents ``own``),
-    points = p_i^τ (M, 2) for the field; samples need agent i at τ, τ+1, τ+2."""
+    Returns (A_x, A_y, y_x, y_y, points) with A = [ū, interaction columns…, alignment
+    columns…] (ū the velocity with memory κ = ``memory``, u itself at 1; pairwise: e, −e/d
+    per neighbour; shared: the B profile columns, then S·B' of the distinguished agents
+    ``own``; with an ``alignment`` kernel its B_a columns of
+    :func:`~herd_ros.model.alignment.alignment_columns`, on every agent's ū with
+    ``herd_memory`` (default ``memory``)), points = p_i^τ (M, 2) for the field; samples
+    need agent i at τ, τ+1, τ+2."""
     p = np.asarray(positions, dtype=float)
     if p.shape[0] < 3:
         return None
@@ -224,8 +203,12 @@ def agent_samples(positions: np.ndarray, i: int, dt: float, law: str,
         cx = np.column_stack([e[..., 0], -e_over_d[..., 0]])
         cy = np.column_stack([e[..., 1], -e_over_d[..., 1]])
     else:
-        inter = shared_columns(pt[ok], i, profile, own, own_profile)
+        inter = shared_columns(pt[ok], i, profile, own, own_profile)[0][:, 0]
         cx, cy = inter[..., 0], inter[..., 1]
+    if alignment is not None:
+        herd_ubar = memory_velocities(u, memory if herd_memory is None else herd_memory)
+        al = alignment.columns(pt[ok], herd_ubar[:-1][ok], [i])[:, 0]     # (M, B_a, 2)
+        cx, cy = np.column_stack([cx, al[..., 0]]), np.column_stack([cy, al[..., 1]])
     A_x = np.column_stack([ubar[:-1][ok, 0], cx])
     A_y = np.column_stack([ubar[:-1][ok, 1], cy])
     return A_x, A_y, u[1:][ok, i, 0], u[1:][ok, i, 1], pt[ok, i, :]
@@ -300,6 +283,15 @@ def typical_spacing(runs_positions) -> float:
     return float(np.median(vals)) if len(vals) else 10.0
 
 
+def default_alignment(runs_positions) -> AlignmentKernel:
+    """The alignment kernel tried by default: :data:`~herd_ros.model.alignment.DEFAULT_SIZE`
+    bumps over the shared law's radius (4 × the typical nearest-neighbour spacing, within
+    10–200 m), every neighbour within it."""
+    from herd_ros.model.alignment import DEFAULT_SIZE
+    radius = float(np.clip(4.0 * typical_spacing(runs_positions), 10.0, 200.0))
+    return AlignmentKernel.even(radius, DEFAULT_SIZE)
+
+
 def field_grids(bounds, samples_per_agent: int, cells=FIELD_CELLS) -> list[tuple]:
     """(nx, ny) for each number of cells in ``cells`` that the data support (at most one
     cell per :data:`SAMPLES_PER_FIELD_CELL` samples), arranged to the region's aspect."""
@@ -349,7 +341,7 @@ def screen_for_driver(runs_positions, agents: list[str], dt: float, profile: Dis
         if ok.sum() < 4 * DEFAULT_PROFILE_SIZE:
             continue
         pt = p0[ok]
-        pooled = shared_columns(pt, i, profile)                    # (M, B, 2)
+        pooled = shared_columns(pt, i, profile)[0][:, 0]           # (M, B, 2)
         X = np.vstack([np.column_stack([u0[ok, i, 0], pooled[..., 0]]),
                        np.column_stack([u0[ok, i, 1], pooled[..., 1]])])
         y = np.concatenate([u1[ok, i, 0], u1[ok, i, 1]])
@@ -392,7 +384,7 @@ def region_cells(where: np.ndarray, region: FieldGrid) -> np.ndarray:
 
 def _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds, min_visits,
                       folds, own=(), own_profile=None, progress=None, memory=1.0,
-                      memories=None, region=None):
+                      memories=None, region=None, alignment=None):
     """Per agent: its field bases per grid and, per design, the sufficient statistics of
     every block (None for a block without samples), for velocity memory ``memory``; with
     ``memories``, a dict {κ: that list} for each κ of them instead (the samples are formed
@@ -423,7 +415,8 @@ def _block_statistics(runs_positions, agents, dt, law, profile, designs, bounds,
             edges = np.linspace(0, T - 2, min(folds, T - 2) + 1).astype(int)
             for b0, b1 in zip(edges[:-1], edges[1:]):
                 q = p[b0:b1 + 2]
-                smp = agent_samples(q, i, dt, law, profile, own, own_profile, memory)
+                smp = agent_samples(q, i, dt, law, profile, own, own_profile, memory,
+                                    alignment)
                 ubars = None
                 if smp is not None and memories is not None:
                     u = velocities(q[:, i:i + 1], dt)
@@ -480,7 +473,7 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
                  folds: int = FOLDS, ridges=RIDGES, grids=None, terms=None,
                  bounds=None, min_visits: int = DEFAULT_MIN_VISITS, law: str | None = None,
                  own_agents=None, progress=None, memory: float = 1.0,
-                 memories=MEMORIES) -> Selection:
+                 memories=MEMORIES, alignment='auto') -> Selection:
     """Score every candidate by blocked CV and choose one (see the module docstring).
 
     Args:
@@ -501,6 +494,12 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
         memories: other κ tried on the structure the one-standard-error rule chooses
             among the candidates above (a last pass; ``()`` = none). κ counts as one
             parameter of the herd, so a memory is kept only if it earns it.
+        alignment: the velocity alignment tried on the chosen structure, with and without
+            the position interactions (:mod:`herd_ros.model.alignment`; a pass before the
+            memory's): an :class:`~herd_ros.model.alignment.AlignmentKernel`, 'auto' (the
+            kernel :func:`default_alignment` makes from the data, unless ``terms`` pins the
+            terms), or None (not tried).
+            Kept only if it earns its parameters under the same rule.
     """
     memory = check_memory(memory)
     memories = [check_memory(k) for k in memories if float(k) != memory]
@@ -530,6 +529,7 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
     if grids is None:
         grids = field_grids(bounds, steps)
     grids = [tuple(g) for g in grids]
+    all_terms = terms is None
     terms = list(TERMS if terms is None else terms)
     bad = [t for t in terms if t not in TERMS]
     if bad:
@@ -552,9 +552,10 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
                                          prof if inter and names else None, memory))
         return out
 
-    def score(per_agent, group, pass_designs, by_agent=None):
+    def score(per_agent, group, pass_designs, by_agent=None, n_align=0):
         """Add every candidate's held-out SSE per block (and its parameter count); with
-        ``by_agent`` (a dict), also each agent's, (N, blocks) per candidate."""
+        ``by_agent`` (a dict), also each agent's, (N, blocks) per candidate. ``n_align``:
+        the statistics' last alignment columns (before the field)."""
         for i, (bases, blocks) in enumerate(per_agent):
             for g in pass_designs:
                 stats = blocks[g]
@@ -568,7 +569,9 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
                 for s in group:
                     if s.grid != g:
                         continue
-                    cols = np.r_[0, (np.arange(1, pa) if s.interactions else []),
+                    cols = np.r_[0, (np.arange(1, pa - n_align) if s.interactions else []),
+                                 (np.arange(pa - n_align, pa) if s.alignment is not None
+                                  else []),
                                  (np.arange(pa, pa + 2 * K) if g is not None else [])
                                  ].astype(int)
                     n_params[s] = n_params.get(s, 0) + len(cols) / n
@@ -640,6 +643,29 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
     if not used.any():
         raise HerdInputError('no block has the three consecutive steps a sample needs')
     table, chosen = _one_standard_error(candidates, sse, n_params, count, dt)
+    if isinstance(alignment, str):     # 'auto': tried unless the terms were pinned
+        alignment = (default_alignment(runs_positions) if alignment == 'auto' and all_terms
+                     else None)
+    if alignment is not None:
+        # the alignment of the chosen structure, with and without the position interactions
+        own_k = [agents.index(a) for a in chosen.own]
+        design = [chosen.grid]
+        group = [replace(chosen, alignment=alignment)]
+        if inter_terms and chosen.interactions:
+            group.append(replace(chosen, interactions=False, own=(), own_profile=None,
+                                 alignment=alignment))
+        elif inter_terms:
+            group.append(replace(chosen, interactions=True, alignment=alignment))
+        stats_a = _block_statistics(runs_positions, agents, dt, law, profile, design, bounds,
+                                    min_visits, folds, own_k, chosen.own_profile,
+                                    progress=progress, memory=memory, region=region,
+                                    alignment=alignment)
+        for s in group:
+            sse[s] = np.zeros(n_blocks)
+            n_params.pop(s, None)
+        score(stats_a, group, design, n_align=alignment.size)
+        candidates += group
+        table, chosen = _one_standard_error(candidates, sse, n_params, count, dt)
     # last pass: the velocity memory of the chosen structure (one parameter of the herd)
     if memories:
         own_k = [agents.index(a) for a in chosen.own]
@@ -648,7 +674,7 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
         stats3 = _block_statistics(runs_positions, agents, dt, law, profile, design, bounds,
                                    min_visits, folds, own_k, chosen.own_profile,
                                    progress=progress, memory=memory, memories=kappas,
-                                   region=region)
+                                   region=region, alignment=chosen.alignment)
         by_agent = {}
         variants = []
         for kappa in kappas:
@@ -657,7 +683,8 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
             s_k = replace(chosen, memory=kappa)
             sse[s_k] = np.zeros(n_blocks)
             n_params.pop(s_k, None)
-            score(stats3[kappa], [s_k], design, by_agent)
+            score(stats3[kappa], [s_k], design, by_agent,
+                  n_align=chosen.alignment.size if chosen.alignment is not None else 0)
             variants.append(s_k)
             if kappa != memory:
                 n_params[s_k] += 1.0 / n
@@ -723,15 +750,19 @@ def structured_regression(runs_positions, i: int, agents: list[str], dt: float,
     :func:`~herd_ros.estimation.batch_ls.fit_agent`). A distinguished agent's block with
     itself (zero columns) is left out: ``fit_structure`` puts zeros back."""
     memory = structure.memory[i] if isinstance(structure.memory, tuple) else structure.memory
-    parts = [agent_samples(p, i, dt, law, profile, own, own_profile, memory)
-             for p in runs_positions]
+    herd_memory = (np.asarray(structure.memory, dtype=float)
+                   if isinstance(structure.memory, tuple) else structure.memory)
+    parts = [agent_samples(p, i, dt, law, profile, own, own_profile, memory,
+                           structure.alignment, herd_memory) for p in runs_positions]
     parts = [s for s in parts if s is not None]
     if not parts:
         raise HerdInputError(f'agent {agents[i]}: no three consecutive steps to fit on')
     A_x = np.vstack([s[0] for s in parts])
     A_y = np.vstack([s[1] for s in parts])
+    n_align = structure.alignment.size if structure.alignment is not None else 0
     if not structure.interactions:
-        A_x, A_y = A_x[:, :1], A_y[:, :1]
+        keep = np.r_[0, A_x.shape[1] - n_align:A_x.shape[1]].astype(int)
+        A_x, A_y = A_x[:, keep], A_y[:, keep]
     elif i in own:
         B, Bo = profile.size, own_profile.size
         s0 = 1 + B + list(own).index(i) * Bo

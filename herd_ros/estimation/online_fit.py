@@ -162,6 +162,42 @@ class SharedRegressor:
                               frame_id=frame_id, datum=datum)
 
 
+class AlignedRegressor:
+    """A law's regressor with the velocity alignment's columns appended
+    (:mod:`herd_ros.model.alignment`): θ_i = [the law's θ_i, w_i1 … w_iB]."""
+
+    def __init__(self, base, kernel):
+        self.base, self.kernel = base, kernel
+        self.law, self.agents, self.basis = base.law, base.agents, base.basis
+        self.n_params = base.n_params + kernel.size
+        self.field_offset = base.field_offset
+
+    def __getattr__(self, name):            # neighbors, profile: the law's
+        return getattr(self.base, name)
+
+    def labels(self) -> list[str]:
+        return self.base.labels() + [f'alignment_{b}' for b in range(self.kernel.size)]
+
+    def rows(self, p_prev, p_cur, dt):
+        H, valid = self.base.rows(p_prev, p_cur, dt)
+        p0 = np.asarray(p_prev, dtype=float)
+        u = (np.asarray(p_cur, dtype=float) - p0) / dt
+        A = self.kernel.columns(p0[None], u[None], np.arange(len(p0)))[0]   # (N, B, 2)
+        return np.concatenate([H, np.swapaxes(A, 1, 2)], axis=2), valid
+
+    def missing_neighbors(self, missing, last_seen, p_prev):
+        return self.base.missing_neighbors(missing, last_seen, p_prev)
+
+    def to_model(self, theta, theta_se, noise_cov, bases, dt, frame_id='map', datum=None):
+        from herd_ros.model.alignment import VelocityAlignment
+        B = self.kernel.size
+        theta, theta_se = np.asarray(theta), np.asarray(theta_se)
+        model = self.base.to_model(theta[:, :-B], theta_se[:, :-B], noise_cov, bases, dt,
+                                   frame_id, datum)
+        model.alignment = VelocityAlignment(self.kernel, theta[:, -B:], theta_se[:, -B:])
+        return model
+
+
 @dataclass
 class SnapshotResult:
     """What one snapshot did: ``status`` is 'updated', 'primed', 'gap' or 'backwards'."""
@@ -180,7 +216,9 @@ class OnlineHerdEstimator:
                  p0=1e6, min_visits: int = DEFAULT_MIN_VISITS,
                  interaction_radius: float = 60.0, profile_size: int = 6,
                  stats_window: int = 500, windup: str = 'directional', basis: RbfBasis = None,
-                 robust: bool = False):
+                 robust: bool = False, alignment: bool = False, alignment_radius: float = 40.0,
+                 alignment_size: int = 4, alignment_neighbourhood: str = 'radius',
+                 alignment_nearest: int = 7):
         agents = [str(a) for a in agents]
         if len(agents) < 1 or len(set(agents)) != len(agents):
             raise HerdInputError(f'agents must be a non-empty list of distinct ids, got {agents}')
@@ -197,6 +235,12 @@ class OnlineHerdEstimator:
         else:
             self.profile = DistanceProfile.even(interaction_radius, int(profile_size))
             self.regressor = SharedRegressor(agents, self.basis, self.profile)
+        kernel = None
+        if alignment:
+            from herd_ros.model.alignment import AlignmentKernel
+            kernel = AlignmentKernel.even(alignment_radius, int(alignment_size),
+                                          alignment_neighbourhood, int(alignment_nearest))
+            self.regressor = AlignedRegressor(self.regressor, kernel)
         self.min_visits = int(min_visits)
         self.stats_window = int(stats_window)
         self.robust = bool(robust)
@@ -207,6 +251,11 @@ class OnlineHerdEstimator:
                        'field_bounds': list(self.grid.bounds),
                        'interaction_radius': float(interaction_radius),
                        'profile_size': int(profile_size), 'robust': self.robust}
+        if kernel is not None:      # (absent without: checkpoints from before stay readable)
+            self.config.update(alignment_size=kernel.size,
+                               alignment_radius=float(alignment_radius),
+                               alignment_neighbourhood=kernel.neighbourhood,
+                               alignment_nearest=int(kernel.nearest))
         self._reset_stream()
 
     def structure(self):
@@ -215,7 +264,10 @@ class OnlineHerdEstimator:
         from herd_ros.model.model_structure import ModelStructure
         c = self.config
         return ModelStructure(c['agents'], c['dt'], c['law'], c['field_grid'],
-                              c['field_bounds'], c['interaction_radius'], c['profile_size'])
+                              c['field_bounds'], c['interaction_radius'], c['profile_size'],
+                              c.get('alignment_size', 0), c.get('alignment_radius', 0.0),
+                              c.get('alignment_neighbourhood', 'radius'),
+                              c.get('alignment_nearest', 7))
 
     # -- state -----------------------------------------------------------------------------
     def _reset_stream(self):

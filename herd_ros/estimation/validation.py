@@ -172,6 +172,8 @@ def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajector
         }
     summary['interaction'] = (force_curves(fit, train) if has_pairwise_interactions(model)
                               else {})
+    if getattr(model, 'alignment', None) is not None:
+        summary['alignment'] = model.alignment.summary(model.agents)
     sims = [simulate_from(model, r, seed=seed + k) for k, r in enumerate(train)]
     real_stats, sim_stats = herd_statistics(train), herd_statistics(sims)
     summary['statistics'] = {'real': real_stats, 'simulated': sim_stats,

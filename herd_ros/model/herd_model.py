@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from herd_ros.errors import HerdInputError
+from herd_ros.model.alignment import VelocityAlignment, alignment_term
 from herd_ros.model.rbf_field import RbfBasis, agent_fields
 from herd_ros.model.space_use_field import home_drift
 from herd_ros.model.velocity_memory import VelocityMemory
@@ -114,6 +115,7 @@ class HerdModel(VelocityMemory):
     frame_id: str = 'map'
     datum: list[float] | None = None
     meta: dict = field(default_factory=dict)
+    alignment: VelocityAlignment | None = None
 
     def __post_init__(self):
         missing = [a for a in self.agents if a not in self.laws]
@@ -178,9 +180,11 @@ class HerdModel(VelocityMemory):
 
     def next_velocity(self, velocity: np.ndarray, positions: np.ndarray,
                       compiled: bool | None = None) -> np.ndarray:
-        """E[u^{τ+1}] = a_i u^τ + Σ f + g (eq. 2 without noise); shapes (..., N, 2). With a
-        velocity memory κ < 1, ``velocity`` is the mean ū^τ (:mod:`velocity_memory`)."""
-        return self.damping[:, None] * velocity + self.drift(positions, compiled)
+        """E[u^{τ+1}] = a_i u^τ + Σ f + g (eq. 2 without noise) + the alignment A_i when the
+        model has one (:mod:`alignment`); shapes (..., N, 2). With a velocity memory κ < 1,
+        ``velocity`` is the mean ū^τ (:mod:`velocity_memory`)."""
+        return (self.damping[:, None] * velocity + self.drift(positions, compiled)
+                + alignment_term(self.alignment, positions, velocity))
 
     def describe(self) -> str:
         """A readable summary (as ``print(model)`` gives)."""

@@ -166,6 +166,17 @@ def add_model_meta(body: dict, model) -> None:
     if (memory != 1.0).any():
         same = (memory == memory[0]).all()
         body['velocity_memory'] = float(memory[0]) if same else float_list(memory)
+    if getattr(model, 'alignment', None) is not None:
+        body['alignment'] = model.alignment.to_dict(model.agents)
+
+
+def read_alignment(body: dict, agents, source: str):
+    """The model's alignment term (:mod:`herd_ros.model.alignment`) from its
+    ``alignment`` mapping, or None when the file has none."""
+    if 'alignment' not in body:
+        return None
+    from herd_ros.model.alignment import VelocityAlignment
+    return VelocityAlignment.from_dict(body['alignment'], agents, f'{source}: model')
 
 
 def read_model_meta(body: dict, n_agents: int, source: str) -> dict:
@@ -230,7 +241,8 @@ def model_from_dict(body: dict, source: str = 'model') -> HerdModel:
             raise HerdInputError(f'{source}: model.{a}: malformed numbers ({exc})') from None
     return HerdModel(agents=agents, dt=float(need(body, 'dt', 'model')), laws=laws,
                      frame_id=str(body.get('frame_id', 'map')), datum=body.get('datum'),
-                     meta=read_model_meta(body, len(agents), source))
+                     meta=read_model_meta(body, len(agents), source),
+                     alignment=read_alignment(body, agents, source))
 
 
 def dump_parameters(model_body: dict, node: str = '/**') -> str:

@@ -4,10 +4,14 @@ std_msgs/String) so that no node declares the estimator's structure a second tim
 
 ``/herd/model/params`` carries θ as a matrix agent × parameter; its rows are read with the
 agents (their order), the clock step, the law, the field grid (every centre of ``field_grid``
-over ``field_bounds``) and, for the shared law, the radius and size of the distance profile.
+over ``field_bounds``), for the shared law the radius and size of the distance profile,
+and, when the law has a velocity alignment (:mod:`herd_ros.model.alignment`), its kernel:
+``alignment_size`` bumps (0 = none; their weights are the last columns) over
+``alignment_radius``, its neighbourhood and, for 'nearest', k.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import asdict, dataclass
@@ -28,6 +32,10 @@ class ModelStructure:
     field_bounds: tuple
     interaction_radius: float
     profile_size: int
+    alignment_size: int = 0
+    alignment_radius: float = 0.0
+    alignment_neighbourhood: str = 'radius'
+    alignment_nearest: int = 7
 
     def __post_init__(self):
         from herd_ros.model.model_file import check_agent_id
@@ -57,13 +65,29 @@ class ModelStructure:
         object.__setattr__(self, 'dt', float(self.dt))
         object.__setattr__(self, 'interaction_radius', float(self.interaction_radius))
         object.__setattr__(self, 'profile_size', int(self.profile_size))
+        if int(self.alignment_size) < 0 or (int(self.alignment_size) > 0 and not (
+                isinstance(self.alignment_radius, (int, float))
+                and math.isfinite(self.alignment_radius) and self.alignment_radius > 0)):
+            raise HerdInputError('model structure: alignment_size ≥ 0, and a positive '
+                                 'alignment_radius with it')
+        object.__setattr__(self, 'alignment_size', int(self.alignment_size))
+
+    def alignment_kernel(self):
+        """The :class:`~herd_ros.model.alignment.AlignmentKernel` of the last
+        ``alignment_size`` columns, or None."""
+        if not self.alignment_size:
+            return None
+        from herd_ros.model.alignment import AlignmentKernel
+        return AlignmentKernel.even(self.alignment_radius, self.alignment_size,
+                                    self.alignment_neighbourhood, self.alignment_nearest)
 
     @property
     def n_params(self) -> int:
-        """Columns of the parameter matrix: 1 + 2(N − 1) + 2K (pairwise) or 1 + B + 2K."""
+        """Columns of the parameter matrix: 1 + 2(N − 1) + 2K (pairwise) or 1 + B + 2K, then
+        the alignment's B_a."""
         k = self.field_grid[0] * self.field_grid[1]
         middle = 2 * (len(self.agents) - 1) if self.law == 'pairwise' else self.profile_size
-        return 1 + middle + 2 * k
+        return 1 + middle + 2 * k + self.alignment_size
 
     def to_json(self) -> str:
         body = asdict(self)
@@ -76,6 +100,8 @@ class ModelStructure:
         """Read a structure message; a malformed one is a :class:`HerdInputError`."""
         try:
             body = json.loads(text)
-            return cls(**{name: body[name] for name in cls.__dataclass_fields__})
+            fields = cls.__dataclass_fields__
+            return cls(**{name: body[name] for name in fields
+                          if name in body or fields[name].default is dataclasses.MISSING})
         except (ValueError, KeyError, TypeError) as exc:
             raise HerdInputError(f'model structure: not a structure message ({exc})') from None

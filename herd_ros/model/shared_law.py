@@ -77,9 +77,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from herd_ros.errors import HerdInputError
+from herd_ros.model.distance_profile import (  # noqa: F401 (re-exported)
+    DEFAULT_PROFILE_SIZE, DEFAULT_RADIUS, DistanceProfile)
 from herd_ros.model.model_file import (add_model_meta, check_agent_id, dump_parameters,
-                                       float_list, load_model_body, read_model_meta,
-                                       write_atomic)
+                                       float_list, load_model_body, read_alignment,
+                                       read_model_meta, write_atomic)
 from herd_ros.model.rbf_field import RbfBasis, agent_fields
 from herd_ros.model.space_use_field import home_drift
 from herd_ros.model.velocity_memory import VelocityMemory
@@ -87,48 +89,6 @@ from herd_ros.model.velocity_memory import VelocityMemory
 KIND = 'schwager2007_shared'
 #: Up to this many agents a whole run's interactions are summed over every pair at once.
 DENSE_MAX_AGENTS = 200
-DEFAULT_RADIUS = 60.0
-DEFAULT_PROFILE_SIZE = 6
-
-
-@dataclass(frozen=True)
-class DistanceProfile:
-    """The radial basis ψ_b(d) of the shared law (module docstring)."""
-
-    radius: float
-    centers: tuple
-    width: float
-
-    def __post_init__(self):
-        if not (np.isfinite(self.radius) and self.radius > 0):
-            raise HerdInputError(f'interaction radius must be positive, got {self.radius}')
-        if len(self.centers) < 1 or not (np.isfinite(self.width) and self.width > 0):
-            raise HerdInputError('the distance profile needs ≥ 1 centre and a positive width')
-
-    @staticmethod
-    def even(radius: float = DEFAULT_RADIUS, size: int = DEFAULT_PROFILE_SIZE):
-        """B = ``size`` bumps evenly in (0, r), width ⅔ of their spacing."""
-        if size < 1:
-            raise HerdInputError(f'profile size must be ≥ 1, got {size}')
-        spacing = float(radius) / size
-        return DistanceProfile(float(radius), tuple(spacing * (np.arange(size) + 0.5)),
-                               2.0 / 3.0 * spacing)
-
-    @property
-    def size(self) -> int:
-        return len(self.centers)
-
-    def features(self, distance) -> np.ndarray:
-        """ψ_b(d): distances (...,) -> (..., B); zero at and beyond the radius."""
-        d = np.asarray(distance, dtype=float)
-        c = np.asarray(self.centers)
-        taper = np.where(d < self.radius, 0.5 * (1.0 + np.cos(np.pi * np.minimum(
-            d / self.radius, 1.0))), 0.0)
-        return np.exp(-(d[..., None] - c) ** 2 / (2.0 * self.width ** 2)) * taper[..., None]
-
-    def force(self, coefficients, distance) -> np.ndarray:
-        """F(d) = Σ_b c_b ψ_b(d) (positive = attraction): (B,) × (...,) -> (...,)."""
-        return self.features(distance) @ np.asarray(coefficients, dtype=float)
 
 
 def neighbor_pairs(positions: np.ndarray, radius: float):
@@ -147,53 +107,90 @@ def neighbor_pairs(positions: np.ndarray, radius: float):
     return i, j, off, np.sqrt((off ** 2).sum(-1))
 
 
-def interaction_features(positions: np.ndarray, profile: DistanceProfile, own=()):
-    """Σ_{j: d_ij<r} ψ_b(d_ij) e_ij for every agent: (N, 2) -> (N, B, 2), and a valid mask.
+def shared_columns(positions: np.ndarray, rows, profile: DistanceProfile, own=(),
+                   own_profile: DistanceProfile | None = None):
+    """The shared law's interaction columns — the one builder of them, for the batch fit and
+    the selection (one agent over many steps), the RLS (every agent at one step) and the
+    model's own evaluation.
 
-    ``own``: indices of the distinguished agents, left out of everyone else's sum (they act
-    through :func:`own_features`). An agent that coincides with a neighbour (d = 0: e_ij
-    undefined) is marked invalid.
+    For each step m and agent i of ``rows``: Σ_{j: d_ij < r, j not in own} ψ_b(d_ij) e_ij
+    (B columns), then per distinguished agent k of ``own`` (with ``own_profile``)
+    ψ'_b(d_ik) e_ik (S·B' columns; zero for k = i, for a missing k and beyond r').
+
+    Args:
+        positions: (M, N, 2), NaN = missing (a missing neighbour drops out).
+        rows: the agents i (indices).
+    Returns:
+        (columns (M, R, B + S·B', 2), coincident (M, R): agent i shares its position with
+        another agent, d = 0, where e_ij is undefined and its columns are left out).
+        A single step of more than :data:`DENSE_MAX_AGENTS` agents takes its pooled pairs
+        from a k-d tree; otherwise every pair is formed at once, in chunks.
     """
     p = np.asarray(positions, dtype=float)
-    n, B = p.shape[0], profile.size
-    i, j, off, d = neighbor_pairs(p, profile.radius)
-    valid = np.isfinite(p).all(axis=1)
-    zero = d <= 0
-    if zero.any():
-        valid[i[zero]] = False
-        valid[j[zero]] = False
+    M, n = p.shape[:2]
+    rows = np.atleast_1d(np.asarray(rows, dtype=int))
+    own = [int(k) for k in own]
+    B = profile.size
+    Bo = own_profile.size if own and own_profile is not None else 0
+    out = np.zeros((M, len(rows), B + len(own) * Bo, 2))
+    coincident = np.zeros((M, len(rows)), bool)
+    pooled = np.ones(n, bool)
+    pooled[own] = False
+    if M == 1 and n > DENSE_MAX_AGENTS:
+        i, j, off, d = neighbor_pairs(p[0], profile.radius)
+        zero = d <= 0
+        hit = np.zeros(n, bool)
+        hit[i[zero]] = hit[j[zero]] = True
         i, j, off, d = i[~zero], j[~zero], off[~zero], d[~zero]
-    e = off / d[:, None] if len(d) else off
-    psi = profile.features(d)                           # (M, B)
-    to_i = to_j = 1.0
-    if len(own):
-        pooled = np.ones(n)
-        pooled[np.asarray(own, dtype=int)] = 0.0
-        to_i, to_j = pooled[j], pooled[i]               # j acts on i only if j is not own
-    out = np.zeros((n, B, 2))
-    for b in range(B):                                  # loop over basis columns, not agents
-        for k in range(2):
-            w = psi[:, b] * e[:, k]
-            out[:, b, k] = (np.bincount(i, w * to_i, minlength=n)
-                            - np.bincount(j, w * to_j, minlength=n))
-    return out, valid
+        w = profile.features(d)[..., None] * (off / d[:, None])[:, None, :]   # (P, B, 2)
+        full = np.zeros((n, B, 2))
+        np.add.at(full, i, w * pooled[j][:, None, None])      # j acts on i if j is pooled
+        np.add.at(full, j, -w * pooled[i][:, None, None])
+        out[0, :, :B] = full[rows]
+        coincident[0] = hit[rows]
+        cols = [own_profile] if Bo else []
+        if cols:                                   # S distinguished agents: (R, S) dense
+            off = p[0, own][None] - p[0, rows][:, None]
+            d = np.sqrt((off ** 2).sum(-1))
+            self_ = rows[:, None] == np.asarray(own)[None, :]
+            ok = np.isfinite(d) & (d > 0) & ~self_
+            coincident[0] |= (np.isfinite(d) & (d <= 0) & ~self_).any(-1)
+            with np.errstate(invalid='ignore', divide='ignore'):
+                e = np.where(ok[..., None], off / np.where(ok, d, 1.0)[..., None], 0.0)
+            h = own_profile.features(np.where(ok, d, np.inf))[..., None] * e[:, :, None, :]
+            out[0, :, B:] = h.reshape(len(rows), -1, 2)
+        return out, coincident
+    rchunk = max(1, int(4_000_000 // max(n * B, 1)))
+    for r0 in range(0, len(rows), rchunk):
+        rr = rows[r0:r0 + rchunk]
+        mchunk = max(1, int(4_000_000 // max(len(rr) * n * B, 1)))
+        not_self = np.arange(n)[None, :] != rr[:, None]                  # (R, N)
+        for m0 in range(0, M, mchunk):
+            q = p[m0:m0 + mchunk]
+            off = q[:, None, :, :] - q[:, rr, None, :]                   # [m, r, j] = p_j − p_i
+            d = np.sqrt((off ** 2).sum(-1))
+            with np.errstate(invalid='ignore'):
+                near = np.isfinite(d) & (d > 0) & not_self
+                coincident[m0:m0 + mchunk, r0:r0 + len(rr)] = (
+                    np.isfinite(d) & (d <= 0) & not_self).any(-1)
+            with np.errstate(invalid='ignore', divide='ignore'):
+                e = np.where(near[..., None], off / np.where(near, d, 1.0)[..., None], 0.0)
+            psi = profile.features(np.where(near & pooled, d, np.inf))     # (m, R, N, B)
+            block = out[m0:m0 + mchunk, r0:r0 + len(rr)]
+            block[:, :, :B] = np.einsum('mrjb,mrjk->mrbk', psi, e)
+            for s, k in enumerate(own[:len(own) if Bo else 0]):
+                h = own_profile.features(np.where(near[:, :, k], d[:, :, k], np.inf))
+                block[:, :, B + s * Bo:B + (s + 1) * Bo] = h[..., None] * e[:, :, k, None, :]
+    return out, coincident
 
 
-def own_features(positions: np.ndarray, own, profile: DistanceProfile):
-    """ψ'_b(d_ik) e_ik of every agent i towards each distinguished agent k = ``own[s]``:
-    (N, 2) -> (N, S, B', 2) (zero for k = i, for a missing k and beyond the radius), and a
-    valid mask (False where i coincides with a distinguished agent)."""
+def interaction_features(positions: np.ndarray, profile: DistanceProfile, own=()):
+    """The pooled columns Σ_{j: d_ij<r} ψ_b(d_ij) e_ij of every agent at one step, (N, 2) ->
+    (N, B, 2), and a valid mask (a finite position, no coincident neighbour):
+    :func:`shared_columns`. ``own``: the distinguished agents, left out of every sum."""
     p = np.asarray(positions, dtype=float)
-    own = np.asarray(own, dtype=int)
-    off = p[own][None, :, :] - p[:, None, :]            # (N, S, 2): p_k − p_i
-    d = np.sqrt((off ** 2).sum(-1))
-    ok = np.isfinite(d) & (d > 0) & (d < profile.radius)
-    coincide = np.isfinite(d) & (d <= 0)
-    coincide[own, np.arange(len(own))] = False          # an agent with itself
-    with np.errstate(invalid='ignore', divide='ignore'):
-        e = np.where(ok[..., None], off / np.where(ok, d, 1.0)[..., None], 0.0)
-    psi = profile.features(np.where(ok, d, np.inf))     # (N, S, B')
-    return psi[..., None] * e[:, :, None, :], ~coincide.any(axis=1)
+    cols, coincident = shared_columns(p[None], np.arange(p.shape[0]), profile, own)
+    return cols[0], np.isfinite(p).all(axis=1) & ~coincident[0]
 
 
 def shared_rows(p_prev: np.ndarray, p_cur: np.ndarray, dt: float, profile: DistanceProfile,
@@ -201,29 +198,22 @@ def shared_rows(p_prev: np.ndarray, p_cur: np.ndarray, dt: float, profile: Dista
     """Regression rows of u^{τ+1} for all agents from p^τ (``p_prev``) and p^{τ+1} (``p_cur``).
 
     Returns H (N, 2, p) with rows [u, Σψ e, ψ'e.., φ, 0] (x) and [u, Σψ e, ψ'e.., 0, φ] (y),
-    p = 1 + B + S·B' + 2K (S = ``len(own)`` distinguished agents), and valid (N,) (finite
-    positions, no coincident neighbour).
+    p = 1 + B + S·B' + 2K (S = ``len(own)`` distinguished agents; the interaction columns
+    of :func:`shared_columns`), and valid (N,) (finite positions, no coincident neighbour).
     """
     p0 = np.asarray(p_prev, dtype=float)
     u = (np.asarray(p_cur, dtype=float) - p0) / dt
-    n, B, K = p0.shape[0], profile.size, basis.size
-    inter, valid = interaction_features(p0, profile, own)
-    O = 0
-    if len(own):
-        h, ok = own_features(p0, own, own_profile)      # (N, S, B', 2)
-        valid &= ok
-        O = h.shape[1] * h.shape[2]
+    n, K = p0.shape[0], basis.size
+    cols, coincident = shared_columns(p0[None], np.arange(n), profile, own, own_profile)
+    C = cols.shape[2]
     phi = basis.features(np.nan_to_num(p0))
-    H = np.zeros((n, 2, 1 + B + O + 2 * K))
+    H = np.zeros((n, 2, 1 + C + 2 * K))
     H[:, :, 0] = u
-    H[:, 0, 1:1 + B] = inter[..., 0]
-    H[:, 1, 1:1 + B] = inter[..., 1]
-    if O:
-        H[:, 0, 1 + B:1 + B + O] = h[..., 0].reshape(n, O)
-        H[:, 1, 1 + B:1 + B + O] = h[..., 1].reshape(n, O)
-    H[:, 0, 1 + B + O:1 + B + O + K] = phi
-    H[:, 1, 1 + B + O + K:] = phi
-    valid &= np.isfinite(u).all(axis=1)
+    H[:, 0, 1:1 + C] = cols[0, :, :, 0]
+    H[:, 1, 1:1 + C] = cols[0, :, :, 1]
+    H[:, 0, 1 + C:1 + C + K] = phi
+    H[:, 1, 1 + C + K:] = phi
+    valid = np.isfinite(p0).all(axis=1) & np.isfinite(u).all(axis=1) & ~coincident[0]
     return H, valid
 
 
@@ -252,6 +242,7 @@ class SharedLawModel(VelocityMemory):
     own_agents: list = field(default_factory=list)
     own_profile: DistanceProfile | None = None
     own_coef: np.ndarray | None = None
+    alignment: object = None        # a VelocityAlignment (:mod:`alignment`) or None
 
     kind = KIND
 
@@ -299,51 +290,32 @@ class SharedLawModel(VelocityMemory):
         return np.concatenate([[self.damping[i]], self.profile_coef[i],
                                self.own_coef[i].ravel(), self.field_u[i], self.field_v[i]])
 
+    def parameter_names(self, i: int) -> list[str]:
+        """The names of :meth:`theta`'s entries: profile[b], own_profile[agent][b],
+        field_u[k], field_v[k]."""
+        own = [f'own_profile[{self.agents[k]}][{b}]' for k in self.own_index
+               for b in range(self.own_coef.shape[-1])]
+        K = len(self.field_u[i])
+        return (['damping'] + [f'profile[{b}]' for b in range(self.profile_coef.shape[1])]
+                + own + [f'field_u[{k}]' for k in range(K)]
+                + [f'field_v[{k}]' for k in range(K)])
+
     def interaction(self, positions: np.ndarray) -> np.ndarray:
         """Σ_{j: d<r} F_i(d_ij) e_ij (+ Σ_k H_ik(d_ik) e_ik over the distinguished agents)
-        for positions (N, 2) or (T, N, 2)."""
+        for positions (N, 2) or (T, N, 2): the columns of :func:`shared_columns` times θ."""
         p = np.asarray(positions, dtype=float)
         if not (self.profile_coef.any() or self.own_coef.any()):
             return np.zeros(p.shape)               # no interaction kept (a damping-only fit)
-        if p.ndim == 3:
-            if p.shape[1] <= DENSE_MAX_AGENTS:
-                return self._interaction_dense(p)
-            return np.stack([self.interaction(q) for q in p])
-        inter, _ = interaction_features(p, self.profile, self.own_index)   # (N, B, 2)
-        out = np.einsum('nbk,nb->nk', inter, self.profile_coef)
-        if len(self.own_index):
-            h, _ = own_features(p, self.own_index, self.own_profile)        # (N, S, B', 2)
-            out = out + np.einsum('nsbk,nsb->nk', h, self.own_coef)
-        return out
-
-    def _interaction_dense(self, p: np.ndarray) -> np.ndarray:
-        """:meth:`interaction` of a whole run (T, N, 2) with every pair at once, in chunks
-        of time (the same sums as the per-step neighbour search, without a tree per step)."""
-        T, n, _ = p.shape
-        pooled = np.ones(n, bool)
-        pooled[self.own_index] = False
-        B = self.profile.size
-        chunk = max(1, int(4_000_000 // max(n * n * B, 1)))
-        out = np.zeros((T, n, 2))
-        for t0 in range(0, T, chunk):
-            q = p[t0:t0 + chunk]
-            off = q[:, None, :, :] - q[:, :, None, :]                 # [t, i, j] = p_j − p_i
-            d = np.sqrt((off ** 2).sum(-1))
-            with np.errstate(invalid='ignore'):
-                near = np.isfinite(d) & (d > 0)
-            with np.errstate(invalid='ignore', divide='ignore'):
-                e = np.where(near[..., None], off / np.where(near, d, 1.0)[..., None], 0.0)
-            use = near & (d < self.profile.radius) & pooled[None, None, :]
-            psi = self.profile.features(np.where(use, d, np.inf))     # (t, i, j, B)
-            force = np.einsum('tijb,ib->tij', psi, self.profile_coef)
-            acc = np.einsum('tij,tijk->tik', force, e)
-            for s, k in enumerate(self.own_index):
-                dk = np.where(near[:, :, k] & (d[:, :, k] < self.own_profile.radius),
-                              d[:, :, k], np.inf)
-                h = np.einsum('tib,ib->ti', self.own_profile.features(dk), self.own_coef[:, s])
-                acc = acc + h[..., None] * e[:, :, k]
-            out[t0:t0 + chunk] = acc
-        return out
+        q = p if p.ndim == 3 else p[None]
+        n = q.shape[1]
+        coef = np.concatenate([self.profile_coef, self.own_coef.reshape(n, -1)], axis=1)
+        out = np.empty(q.shape)
+        chunk = max(1, int(2_000_000 // max(n * coef.shape[1] * 2, 1)))
+        for t0 in range(0, len(q), chunk):
+            cols, _ = shared_columns(q[t0:t0 + chunk], np.arange(n), self.profile,
+                                     self.own_index, self.own_profile)
+            out[t0:t0 + chunk] = np.einsum('tnck,nc->tnk', cols, coef)
+        return out if p.ndim == 3 else out[0]
 
     def environment(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
         """g_i(p_i) for positions (..., N, 2): the RBF field (plus the space-use home pull)."""
@@ -355,8 +327,10 @@ class SharedLawModel(VelocityMemory):
 
     def next_velocity(self, velocity, positions,
                       compiled: bool | None = None):
-        """E[u^{τ+1}] = a_i u^τ + Σ F e + g."""
-        return self.damping[:, None] * velocity + self.drift(positions, compiled)
+        """E[u^{τ+1}] = a_i u^τ + Σ F e + g (+ the alignment A_i, :mod:`alignment`)."""
+        from herd_ros.model.alignment import alignment_term
+        return (self.damping[:, None] * velocity + self.drift(positions, compiled)
+                + alignment_term(self.alignment, positions, velocity))
 
     def describe(self) -> str:
         lines = [f'SharedLawModel({KIND}, {self.n_agents} agents, dt={self.dt:g} s, radius '
@@ -468,7 +442,8 @@ def shared_model_from_dict(body: dict, source: str = 'model') -> SharedLawModel:
                           frame_id=str(body.get('frame_id', 'map')), datum=body.get('datum'),
                           meta=read_model_meta(body, len(agents), source),
                           own_agents=own_agents, own_profile=own_profile,
-                          own_coef=np.array(own) if own_agents else None)
+                          own_coef=np.array(own) if own_agents else None,
+                          alignment=read_alignment(body, agents, source))
 
 
 def save_shared_model(model: SharedLawModel, path, selection: dict | None = None):

@@ -13,12 +13,11 @@ against the naive baselines; clock problems as WARN). Services ``~/save_model`` 
 ``checkpoint_period_s`` and on shutdown, resumed at start when compatible; data time far
 behind them starts a new session (:mod:`herd_ros.estimation.sessions`).
 
-The numerics are :class:`herd_ros.estimation.online_fit.OnlineHerdEstimator`; this node only
-converts messages and parameters.
+The numerics are :class:`herd_ros.herd_dynamics.HerdDynamics` learning online; this node
+only converts messages and parameters.
 """
 from __future__ import annotations
 
-import array
 import sys
 from pathlib import Path
 
@@ -27,20 +26,22 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
+from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from herd_ros.errors import HerdInputError
-from herd_ros.estimation.online_fit import OnlineHerdEstimator
 from herd_ros.estimation.online_status import agent_statuses, herd_skill
 from herd_ros.estimation.sessions import set_aside
+from herd_ros.herd_dynamics import HerdDynamics
 from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, data_path, declare_parameters,
                                        describe_remaining_parameters, diagnostic_array,
-                                       diagnostic_status, exit_process, run_node,
-                                       seconds_to_stamp, stamp_to_seconds, wall_timer)
+                                       diagnostic_status, exit_process, matrix_message,
+                                       run_node, seconds_to_stamp, stamp_to_seconds,
+                                       wall_timer)
 from herd_ros.nodes.model_markers import model_markers, pose_at
-from herd_ros.params.estimator import PARAMS as DEFAULTS, check, forgetting_problem
+from herd_ros.params.estimator import (LEARNER_OPTIONS, PARAMS as DEFAULTS, check,
+                                      forgetting_problem)
 
 
 def read_parameters(node: Node) -> dict:
@@ -53,15 +54,15 @@ def read_parameters(node: Node) -> dict:
 
 
 class Estimator(Node):
-    """Messages in, :class:`OnlineHerdEstimator` in the middle, messages out."""
+    """Messages in, :class:`~herd_ros.herd_dynamics.HerdDynamics` learning online in the
+    middle, messages out."""
 
     def __init__(self):
         super().__init__('estimator')
         self.cfg = cfg = read_parameters(self)
-        self.core = OnlineHerdEstimator(
-            cfg['agents'], cfg['dt'], cfg['law'], cfg['field_grid'], cfg['field_bounds'],
-            cfg['forgetting'], cfg['p0'], cfg['min_visits'], cfg['interaction_radius'],
-            cfg['profile_size'], robust=bool(cfg['robust']))
+        self.dynamics = HerdDynamics.online_learner(cfg['agents'], cfg['dt'], **{
+            k: cfg[k] for k in LEARNER_OPTIONS})
+        self.core = self.dynamics.online         # checkpoints, statistics, markers
         self.counts = dict(snapshots=0, updates=0, gaps=0, backwards=0, sessions=1)
         self.clock_warning = ''
         self._resume()
@@ -144,11 +145,11 @@ class Estimator(Node):
             return
         t = stamp_to_seconds(msg.header.stamp)
         positions = np.array([[p.position.x, p.position.y] for p in msg.poses])
-        result = self.core.add_snapshot(t, positions)
+        result = self.dynamics.partial_fit(t, positions)
         self.counts['snapshots'] += 1
         if result.status == 'backwards' and -result.step > self.cfg['new_session_after_s']:
             self._new_session(t, -result.step)
-            result = self.core.add_snapshot(t, positions)
+            result = self.dynamics.partial_fit(t, positions)
         if result.status == 'backwards':
             self.counts['backwards'] += 1
             self._warn(f'snapshot at {t:.3f} s is not after the previous one: ignored')
@@ -181,18 +182,10 @@ class Estimator(Node):
 
     def publish_params(self, stamp=None):
         theta = self.core.theta
-        n, p = theta.shape
-        msg = Float64MultiArray()
-        msg.layout.dim = [MultiArrayDimension(label='agent', size=n, stride=n * p),
-                          MultiArrayDimension(label='param', size=p, stride=p)]
-        msg.data = array.array('d', theta.ravel())
-        self.params_pub.publish(msg)
-        q = self.core.rls.noise_cov().reshape(n, 4)
-        noise = Float64MultiArray()
-        noise.layout.dim = [MultiArrayDimension(label='agent', size=n, stride=n * 4),
-                            MultiArrayDimension(label='qxx_qxy_qyx_qyy', size=4, stride=4)]
-        noise.data = array.array('d', q.ravel())
-        self.noise_pub.publish(noise)
+        self.params_pub.publish(matrix_message(theta, 'param'))
+        self.noise_pub.publish(matrix_message(
+            self.core.rls.noise_cov().reshape(len(theta), 4), 'qxx_qxy_qyx_qyy'))
+
 
     def publish_prediction(self):
         pred = self.core.predict()

@@ -11,13 +11,10 @@ from std_msgs.msg import Float64MultiArray, String
 
 from herd_ros.control.damping import damping_check
 from herd_ros.control.fleet_observation import FleetObservation
-from herd_ros.control.herd_follower import (HerdClockHold, HerdFollower, follower_for,
-                                            model_from_parameter_matrix,
-                                            shared_model_from_parameter_matrix)
+from herd_ros.control.herd_follower import HerdClockHold, HerdFollower, follower_for
 from herd_ros.errors import HerdInputError
-from herd_ros.model import kinds
+from herd_ros.herd_dynamics import HerdDynamics
 from herd_ros.model.model_structure import ModelStructure
-from herd_ros.model.rbf_field import FieldGrid
 from herd_ros.nodes.ros_common import ParameterError, declare_parameters
 from herd_ros.params.controller import HERD_MODEL as HERD_MODEL_DEFAULTS
 
@@ -86,7 +83,7 @@ class HerdModelPolicy:
                 node = node.setdefault(part, {})
             node[leaf] = value
         try:
-            return kinds.from_dict(body, source='parameters model.*')
+            return HerdDynamics.from_dict(body, source='parameters model.*').model
         except HerdInputError as exc:
             raise ParameterError(str(exc)) from None
 
@@ -101,7 +98,6 @@ class HerdModelPolicy:
             return
         if structure != self.structure:
             self.structure = structure
-            self.grid = FieldGrid(*structure.field_grid, structure.field_bounds)
             self.node.get_logger().info(
                 f'model structure: {len(structure.agents)} agents, dt {structure.dt:g} s, '
                 f'law {structure.law}, field grid {structure.field_grid[0]} x '
@@ -172,14 +168,7 @@ class HerdModelPolicy:
                 kept = 'keeping the previous model' if self.follower is not None else \
                     'robots hold still until a model is accepted'
                 raise HerdInputError(f'/herd/model/params refused: {problem}; {kept}')
-            if st.law == 'shared':
-                model = shared_model_from_parameter_matrix(
-                    theta, list(st.agents), st.dt, self.grid, st.interaction_radius,
-                    st.profile_size, self.noise_cov)
-            else:
-                model = model_from_parameter_matrix(theta, list(st.agents), st.dt, self.grid,
-                                                    self.noise_cov)
-            self.set_model(model)
+            self.set_model(HerdDynamics.from_parameters(theta, st, self.noise_cov).model)
         except (HerdInputError, ParameterError) as exc:
             self.status = f'ignored parameters: {exc}'
             self.refused_since_adopted += 1

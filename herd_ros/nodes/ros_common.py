@@ -12,6 +12,7 @@ import sys
 import threading
 from pathlib import Path
 
+import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -201,6 +202,20 @@ def seconds_to_stamp(t: float) -> Time:
     """float seconds -> builtin_interfaces/Time (nanoseconds rounded, never negative)."""
     ns = max(int(round(t * 1e9)), 0)
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def matrix_message(rows, column_label: str, row_label: str = 'agent'):
+    """A Float64MultiArray of a 2-D array (rows × columns, row-major, labelled)."""
+    import array
+
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+    a = np.asarray(rows, dtype=float)
+    n, p = a.shape
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label=row_label, size=n, stride=n * p),
+                      MultiArrayDimension(label=column_label, size=p, stride=p)]
+    msg.data = array.array('d', a.ravel())
+    return msg
 
 
 def diagnostic_status(name: str, level, message: str, values: dict | None = None,

@@ -83,6 +83,37 @@ PARAMS = {
         range=(1, 1000),
         doc=('Shared law only: number of radial basis terms of the distance '
              'profile F(d).')),
+    'alignment': Param(
+        False,
+        ('learn a velocity alignment too: each animal matches its neighbours\' '
+         'velocity with a distance kernel (its weights: the last columns of θ)'),
+        doc=('Learn a velocity alignment too (herd_ros.model.alignment): each '
+             'animal\'s acceleration gains\n'
+             'the mean of its neighbours\' velocity differences weighted by a '
+             'learned kernel of the\n'
+             'distance; its alignment_size weights are the last columns of θ.')),
+    'alignment_radius': Param(
+        40.0,
+        'alignment: neighbours within this distance (m) count',
+        range=(1e-06, 1000000000.0),
+        doc='Alignment only: neighbours within this distance (m) count.'),
+    'alignment_size': Param(
+        4,
+        'alignment: radial basis terms of the kernel',
+        range=(1, 100),
+        doc='Alignment only: number of radial basis terms of the kernel K(d).'),
+    'alignment_neighbourhood': Param(
+        'radius',
+        'alignment: every neighbour within the radius, or the nearest ones within it',
+        choices=('radius', 'nearest'),
+        doc=('Alignment only: radius = every neighbour within alignment_radius; '
+             'nearest = the\n'
+             'alignment_nearest closest within it.')),
+    'alignment_nearest': Param(
+        7,
+        'alignment: how many nearest neighbours (with alignment_neighbourhood nearest)',
+        range=(1, 1000),
+        doc='Alignment only: k of alignment_neighbourhood nearest.'),
     'robust': Param(
         False,
         ('outlier-robust updates (Chang 2014): an innovation beyond χ²₂(0.95) '
@@ -147,6 +178,12 @@ PARAMS = {
 }
 
 TABLE = NodeTable('estimator', HEADER, PARAMS)
+#: the parameters that are options of the online learner
+#: (:meth:`herd_ros.herd_dynamics.HerdDynamics.online_learner`)
+LEARNER_OPTIONS = ('law', 'field_grid', 'field_bounds', 'forgetting', 'p0', 'min_visits',
+                   'interaction_radius', 'profile_size', 'robust', 'alignment',
+                   'alignment_radius', 'alignment_size', 'alignment_neighbourhood',
+                   'alignment_nearest')
 
 
 def check(values: dict) -> dict:

@@ -192,6 +192,30 @@ def statistics_figure(real: dict, other: dict, path: Path, labels=('real', 'simu
     plt.close(fig)
 
 
+def alignment_figure(model, path: Path):
+    """The learned alignment kernel K(d) (:mod:`herd_ros.model.alignment`): each agent's
+    thin, the herd's mean with its 95 % band, and the bump centres."""
+    al = model.alignment
+    d = np.linspace(0.0, al.kernel.profile.radius, 200)
+    fig, ax = plt.subplots(figsize=(5.2, 3.6))
+    for i in range(len(al.coef)):
+        ax.plot(d, al.curve(d, i), color='0.7', lw=0.6)
+    mean, se = al.herd_curve(d)
+    ax.fill_between(d, mean - 1.96 * se, mean + 1.96 * se, color='C2', alpha=0.3,
+                    label='herd mean ± 95 %')
+    ax.plot(d, mean, 'C2', lw=2)
+    ax.plot(al.kernel.profile.centers, al.curve(np.asarray(al.kernel.profile.centers)),
+            'o', color='C2', ms=4)
+    ax.axhline(0, color='k', lw=0.6)
+    ax.set_xlabel('distance d (m)')
+    ax.set_ylabel('K(d) (> 0: matches the neighbour)')
+    ax.set_title(f'Velocity alignment: {al.kernel.describe()}', fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def write_fit_figures(fit: HerdFit, summary: dict, train_runs, out_dir) -> list[Path]:
     """The figures of the fit report into ``out_dir`` (the interaction figure only for a
     model with pairwise interactions); returns their paths."""
@@ -204,6 +228,9 @@ def write_fit_figures(fit: HerdFit, summary: dict, train_runs, out_dir) -> list[
     elif hasattr(fit.model, 'profile_coef') and np.any(fit.model.profile_coef):
         paths.append(out / 'fig2_profiles.png')
         profile_figure(fit, paths[-1])
+    if getattr(fit.model, 'alignment', None) is not None:
+        paths.append(out / 'fig2_alignment.png')
+        alignment_figure(fit.model, paths[-1])
     paths.append(out / 'fig3_field.png')
     field_figure(fit, train_runs, paths[-1])
     paths.append(out / 'fig4_whiteness.png')

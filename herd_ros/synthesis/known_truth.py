@@ -110,3 +110,23 @@ def make_driven_truth(n_sheep: int = 15, seed=0, dt: float = 1.0, noise_std: flo
         own_agents=['dog'], own_profile=own, own_coef=own_coef)
     p0 = np.vstack([rng.uniform(-4.0, 4.0, size=(n_sheep, 2)), [[25.0, 0.0]]])
     return model, p0
+
+
+#: the alignment kernel of :func:`with_alignment`: K(d) at the bumps of a 4-bump kernel
+#: over 40 m (strongest close by, fading with distance)
+ALIGNMENT_WEIGHTS = (0.25, 0.15, 0.08, 0.03)
+
+
+def with_alignment(model, weights=ALIGNMENT_WEIGHTS, radius: float = 40.0,
+                   neighbourhood: str = 'radius', nearest: int = 7, seed=0):
+    """``model`` with a known velocity alignment (:mod:`herd_ros.model.alignment`): every
+    agent's kernel K_i(d) = Σ_b w_ib ψ_b(d) on ``len(weights)`` bumps over ``radius``, with
+    w_ib = ``weights[b]`` × a gain U(0.8, 1.2) per agent. Returns a new model."""
+    import dataclasses
+
+    from herd_ros.model.alignment import AlignmentKernel, VelocityAlignment
+    rng = np.random.default_rng(seed)
+    kernel = AlignmentKernel.even(radius, len(weights), neighbourhood, nearest)
+    gains = rng.uniform(0.8, 1.2, size=(model.n_agents, 1))
+    return dataclasses.replace(model, alignment=VelocityAlignment(
+        kernel, gains * np.asarray(weights, dtype=float)[None, :]))

@@ -120,12 +120,14 @@ def rates(n, p, repeats, rng):
     return {name: float(np.median(v)) if v else np.nan for name, v in samples.items()}
 
 
-def cpu_share_1000_shared(repeats, rng, compiled=True):
-    """Process time per 1 Hz snapshot of 1 000 animals (shared law), as a share of one core."""
-    n = 1000
+def cpu_share_1000_shared(repeats, rng, compiled=True, n=1000, law='shared',
+                          alignment=False):
+    """Process time per 1 Hz snapshot of ``n`` animals (default 1 000 with the shared law;
+    ``alignment``: with the velocity alignment's columns, 4 bumps over 40 m), as a share
+    of one core: the estimator's live throughput."""
     agents = [f'a{k}' for k in range(n)]
-    est = OnlineHerdEstimator(agents, 1.0, 'shared', (6, 6), (-500, 500, -500, 500),
-                              forgetting=LAMBDA)
+    est = OnlineHerdEstimator(agents, 1.0, law, (6, 6), (-500, 500, -500, 500),
+                              forgetting=LAMBDA, alignment=alignment)
     est.rls.compiled = compiled
     p = rng.uniform(-500, 500, size=(n, 2))
     v = rng.normal(scale=0.5, size=(n, 2))
@@ -173,6 +175,12 @@ def main():
         print(f'1 000 animals, shared law, 1 Hz, {"compiled" if compiled else "numpy":>8}: '
               f'{share * 1e3:5.1f} ms CPU per snapshot = {100 * share:4.1f} % of one core '
               f'(regressors + update)')
+    print('the estimator with velocity alignment (issue 31): CPU per snapshot, compiled')
+    for law, n in (('pairwise', 20), ('shared', 1000)):
+        without, with_ = (cpu_share_1000_shared(args.repeats, rng, True, n, law, a)
+                          for a in (False, True))
+        print(f'{n:5d} animals, {law:>8} law: {without * 1e3:6.2f} ms without, '
+              f'{with_ * 1e3:6.2f} ms with alignment ({100 * (with_ / without - 1):+.0f} %)')
     print(f'load average after: {load_average()}')
     print('reproduce: .venv/bin/python test/bench/bench_rls.py --repeats', args.repeats)
 
