@@ -194,3 +194,21 @@ def test_command_line_fits_reports_and_learns_alignment_online(tmp_path, capsys,
     assert main(['fit', str(data), '-o', str(tmp_path / 'off.yaml'), '--grid', '4x4',
                  '--alignment', 'off', '--field', 'fitted', '--noise', 'gaussian']) == 0
     assert kinds.load(tmp_path / 'off.yaml').alignment is None
+
+
+def test_one_step_and_large_herd_paths_equal_the_general_one():
+    """The RLS's one-step path and the k-d tree path of large herds give the general
+    (every pair, chunked) sums, both neighbourhoods, with missing agents."""
+    import herd_ros.model.alignment as alignment
+    rng = np.random.default_rng(3)
+    for n in (12, 260):
+        p = rng.uniform(-150, 150, size=(1, n, 2))
+        u = rng.normal(size=(1, n, 2))
+        p[0, 3] = np.nan
+        u[0, 5] = np.nan
+        two_p, two_u = np.concatenate([p, p]), np.concatenate([u, u])   # M = 2: general
+        for hood in ('radius', 'nearest'):
+            fast = alignment_columns(p, u, np.arange(n), PROFILE, hood, 4)[0]
+            general = alignment_columns(two_p, two_u, np.arange(n), PROFILE, hood, 4)[1]
+            np.testing.assert_allclose(fast, general, atol=1e-12)
+    assert alignment.SPARSE_FROM_AGENTS < 260

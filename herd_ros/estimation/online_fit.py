@@ -274,6 +274,7 @@ class OnlineHerdEstimator:
         n = len(self.agents)
         self.buffer_times: list[float] = []
         self.buffer_positions: list[np.ndarray] = []
+        self._rows_memo = None
         self.last_seen = np.full((n, 2), np.nan)
         self.visits = np.zeros((n, self.basis.size), dtype=np.int64)
         self.stat_sq = np.zeros(n)          # decayed Σ ‖e‖²
@@ -334,7 +335,7 @@ class OnlineHerdEstimator:
         if len(self.buffer_times) < 3:
             return SnapshotResult('primed')
         p0, p1, p2 = self.buffer_positions
-        H, valid = self.regressor.rows(p0, p1, self.dt)
+        H, valid = self._rows(p0, p1)
         missing = ~np.isfinite(p0).all(axis=1)
         valid &= ~self.regressor.missing_neighbors(missing, self.last_seen, p0)
         y = (p2 - p1) / self.dt
@@ -408,6 +409,16 @@ class OnlineHerdEstimator:
             lam[ok] = lam_o
         return 1.0 / lam
 
+    def _rows(self, p_prev, p_cur):
+        """The regressor's rows of (p^τ, p^{τ+1}), formed once: the prediction after a
+        snapshot needs the rows the next snapshot's update uses (the same buffered arrays)."""
+        memo = self._rows_memo
+        if memo is not None and memo[0] is p_prev and memo[1] is p_cur:
+            return memo[2], memo[3].copy()
+        H, valid = self.regressor.rows(p_prev, p_cur, self.dt)
+        self._rows_memo = (p_prev, p_cur, H, valid.copy())
+        return H, valid
+
     def _push(self, t, p):
         self.buffer_times.append(float(t))
         self.buffer_positions.append(p.copy())
@@ -450,7 +461,7 @@ class OnlineHerdEstimator:
         if len(self.buffer_times) < 2:
             return None
         p0, p1 = self.buffer_positions[-2], self.buffer_positions[-1]
-        H, _ = self.regressor.rows(p0, p1, self.dt)
+        H, _ = self._rows(p0, p1)
         u_next = np.einsum('nkp,np->nk', H, self.rls.theta)
         return self.buffer_times[-1] + self.dt, p1 + self.dt * u_next
 

@@ -76,6 +76,9 @@ def alignment_columns(positions: np.ndarray, velocities: np.ndarray, rows,
         out[0] = _sparse_columns(p[0], u[0], usable[0], rows, profile, neighbourhood,
                                  int(nearest))
         return out
+    if M == 1 and neighbourhood == 'radius' and len(rows) == n:
+        out[0] = _one_step_columns(p[0], u[0], usable[0], profile)
+        return out
     rchunk = max(1, int(4_000_000 // max(n * B, 1)))
     for r0 in range(0, len(rows), rchunk):
         rr = rows[r0:r0 + rchunk]
@@ -103,6 +106,19 @@ def alignment_columns(positions: np.ndarray, velocities: np.ndarray, rows,
     return out
 
 
+def _one_step_columns(p, u, usable, profile):
+    """:func:`alignment_columns` of every agent at one step (the RLS's case), the radius
+    neighbourhood: Σ_j ψ_b(d_ij)(u_j − u_i) = (Ψ_i u)_b − (Σ_j ψ_b(d_ij)) u_i, without forming
+    the velocity differences. (N, B, 2)."""
+    off = p[None, :, :] - p[:, None, :]
+    d = np.sqrt(np.einsum('ijk,ijk->ij', off, off))
+    nb = (d < profile.radius) & (d > 0) & usable[:, None] & usable[None, :]
+    psi = profile.features(np.where(nb, d, profile.radius))       # ψ(r) = 0: not counted
+    uz = np.where(usable[:, None], u, 0.0)
+    cols = np.matmul(psi.transpose(0, 2, 1), uz) - psi.sum(axis=1)[..., None] * uz[:, None, :]
+    return cols / np.maximum(nb.sum(axis=-1), 1)[:, None, None]
+
+
 def _sparse_columns(p, u, usable, rows, profile, neighbourhood, nearest):
     """:func:`alignment_columns` of one step of a large herd: the neighbours from a k-d
     tree (the same sums, without forming every pair): (R, B, 2)."""
@@ -113,10 +129,19 @@ def _sparse_columns(p, u, usable, rows, profile, neighbourhood, nearest):
     full = np.zeros((n, B, 2))
     if len(ok) >= 2:
         tree = cKDTree(p[ok])
-        if neighbourhood == 'radius':
+        if neighbourhood == 'radius':             # each pair once: ψ(d) shared, Δu opposite
             pairs = tree.query_pairs(profile.radius, output_type='ndarray')
-            i = np.concatenate([ok[pairs[:, 0]], ok[pairs[:, 1]]])
-            j = np.concatenate([ok[pairs[:, 1]], ok[pairs[:, 0]]])
+            a, b_ = ok[pairs[:, 0]], ok[pairs[:, 1]]
+            d = np.sqrt(((p[b_] - p[a]) ** 2).sum(-1))
+            keep = d > 0
+            a, b_, d = a[keep], b_[keep], d[keep]
+            w = profile.features(d)[..., None] * (u[b_] - u[a])[:, None, :]
+            for b in range(B):
+                for k in range(2):
+                    full[:, b, k] = (np.bincount(a, w[:, b, k], minlength=n)
+                                     - np.bincount(b_, w[:, b, k], minlength=n))
+            count = np.bincount(a, minlength=n) + np.bincount(b_, minlength=n)
+            return (full / np.maximum(count, 1)[:, None, None])[rows]
         else:
             k = min(nearest, len(ok) - 1)
             d, idx = tree.query(p[ok], k=k + 1, distance_upper_bound=profile.radius)
@@ -128,9 +153,10 @@ def _sparse_columns(p, u, usable, rows, profile, neighbourhood, nearest):
         keep = d > 0
         i, j, d = i[keep], j[keep], d[keep]
         w = profile.features(d)[..., None] * (u[j] - u[i])[:, None, :]     # (P, B, 2)
-        np.add.at(full, i, w)
-        count = np.bincount(i, minlength=n)
-        full /= np.maximum(count, 1)[:, None, None]
+        for b in range(B):
+            for k in range(2):
+                full[:, b, k] = np.bincount(i, w[:, b, k], minlength=n)
+        full /= np.maximum(np.bincount(i, minlength=n), 1)[:, None, None]
     return full[rows]
 
 

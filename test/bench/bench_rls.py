@@ -124,7 +124,8 @@ def cpu_share_1000_shared(repeats, rng, compiled=True, n=1000, law='shared',
                           alignment=False):
     """Process time per 1 Hz snapshot of ``n`` animals (default 1 000 with the shared law;
     ``alignment``: with the velocity alignment's columns, 4 bumps over 40 m), as a share
-    of one core: the estimator's live throughput."""
+    of one core: the estimator's live throughput — what the node does per snapshot, the
+    update and the one-step prediction it publishes."""
     agents = [f'a{k}' for k in range(n)]
     est = OnlineHerdEstimator(agents, 1.0, law, (6, 6), (-500, 500, -500, 500),
                               forgetting=LAMBDA, alignment=alignment)
@@ -139,10 +140,11 @@ def cpu_share_1000_shared(repeats, rng, compiled=True, n=1000, law='shared',
     shares = []
     for _ in range(repeats):
         c0 = time.process_time()
-        steps = 5
+        steps = 5 if n >= 1000 else 200
         for _ in range(steps):
             p = p + v + rng.normal(scale=0.1, size=(n, 2))
             est.add_snapshot(t, p)
+            est.predict()
             t += 1.0
         shares.append((time.process_time() - c0) / steps)  # CPU seconds per 1 s of herd time
     return float(np.median(shares))
@@ -174,7 +176,7 @@ def main():
         share = cpu_share_1000_shared(args.repeats, rng, compiled)
         print(f'1 000 animals, shared law, 1 Hz, {"compiled" if compiled else "numpy":>8}: '
               f'{share * 1e3:5.1f} ms CPU per snapshot = {100 * share:4.1f} % of one core '
-              f'(regressors + update)')
+              f'(regressors + update + prediction)')
     print('the estimator with velocity alignment (issue 31): CPU per snapshot, compiled')
     for law, n in (('pairwise', 20), ('shared', 1000)):
         without, with_ = (cpu_share_1000_shared(args.repeats, rng, True, n, law, a)
