@@ -43,6 +43,7 @@ VERBS = {
     'imitate': 'imitate',
     'imitate-sim': 'imitate_sim',
     'flock': 'flock',
+    'herding': 'herding',
     'demo': 'demo',
     'herd-file': 'herd_file',
     'params': 'params',

@@ -1,0 +1,107 @@
+"""`herd-ros herding`: the herding benchmark (issue 27) — herders drive simulated herds into
+a goal circle (:mod:`herd_ros.herding.benchmark`).
+
+Writes to ``--out``: ``summary.json`` (per setting and herder: ``success``, its Wilson 95 %
+interval ``ci``, ``median_time_s``, mean and max spread, herder path length, seeds),
+``success.png`` (success rates with their intervals) and ``episode.gif`` (one episode of
+the first setting, every herder side by side).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from herd_ros.errors import HerdInputError
+
+HELP = ('herding benchmark: herders (Strömbom\'s shepherd, ...) drive simulated herds into a '
+        'goal; success rates with Wilson intervals, figure and GIF')
+HERDERS = ('strombom',)
+
+
+def _ints(text: str, option: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(',') if v.strip()]
+    except ValueError:
+        raise HerdInputError(f'{option} takes comma-separated integers, got {text!r}') from None
+    if not values or min(values) < 1:
+        raise HerdInputError(f'{option} needs positive integers, got {text!r}')
+    return values
+
+
+def _floats(text: str, option: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(',') if v.strip()]
+    except ValueError:
+        raise HerdInputError(f'{option} takes comma-separated numbers, got {text!r}') from None
+    if not values or min(values) < 0:
+        raise HerdInputError(f'{option} needs numbers ≥ 0, got {text!r}')
+    return values
+
+
+def add_arguments(p):
+    p.add_argument('--out', type=Path, required=True, help='output directory')
+    p.add_argument('--animals', default='14', help='herd sizes N, comma-separated')
+    p.add_argument('--herders', default='1', help='numbers of herders, comma-separated')
+    p.add_argument('--noise', default='0.3', help='animal noise e, comma-separated')
+    p.add_argument('--neighbours', default='half',
+                   help='cohesion: the n nearest neighbours each animal is drawn to, '
+                        'comma-separated; "half" = half the herd (the paper\'s cohesive flock)')
+    p.add_argument('--seeds', type=int, default=200,
+                   help='episodes per setting (seeds 0..S-1, the same for every herder)')
+    p.add_argument('--herder', default='strombom',
+                   help='herders to compare, comma-separated, of: ' + ', '.join(HERDERS))
+    p.add_argument('--no-gif', action='store_true', help='skip episode.gif')
+
+
+def settings_of(args):
+    from herd_ros.herding.benchmark import Setting
+    out = []
+    cohesion = [None if c.strip() == 'half' else c for c in args.neighbours.split(',')]
+    for n in _ints(args.animals, '--animals'):
+        for d in _ints(args.herders, '--herders'):
+            for e in _floats(args.noise, '--noise'):
+                for c in cohesion:
+                    k = None if c is None else _ints(c, '--neighbours')[0]
+                    out.append(Setting(n, d, e, k))
+    return out
+
+
+def run(args) -> int:
+    from herd_ros.cli.common import progress
+    from herd_ros.herding.benchmark import run_episodes, strombom_herder, summarise
+    herders = [h.strip() for h in args.herder.split(',') if h.strip()]
+    unknown = [h for h in herders if h not in HERDERS]
+    if unknown or not herders:
+        raise HerdInputError(f'--herder takes {", ".join(HERDERS)}, got {args.herder!r}')
+    if args.seeds < 1:
+        raise HerdInputError(f'--seeds must be at least 1, got {args.seeds}')
+    policies = {'strombom': strombom_herder}
+    settings = settings_of(args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows, shown = [], {}
+    for st in settings:
+        for name in herders:
+            bar = progress(total=st.budget, desc=f'{name} {st.label()}', unit='step')
+            result = run_episodes(st, policies[name], range(args.seeds),
+                                  record=0 if not shown.get(name) else None,
+                                  progress=bar.update)
+            bar.close()
+            if result['trajectory'] is not None:
+                shown[name] = (st, result['trajectory'])
+            row = summarise(result, st) | {'herder': name}
+            rows.append(row)
+            t = (f'{row["median_time_s"]:.0f} s' if row['median_time_s'] is not None
+                 else '-')
+            print(f'{st.label():<34} {name:<10} success {row["success"]:6.1%} '
+                  f'[{row["ci"][0]:.1%}, {row["ci"][1]:.1%}]  median time {t:>7}  '
+                  f'spread {row["mean_spread_m"]:5.1f} m  path {row["herder_path_m"]:6.0f} m',
+                  flush=True)
+    (args.out / 'summary.json').write_text(json.dumps({'runs': rows}, indent=1))
+    from herd_ros.report.herding_figures import episode_gif, success_figure
+    success_figure(rows, args.out / 'success.png')
+    written = ['summary.json', 'success.png']
+    if not args.no_gif and shown:
+        episode_gif(shown, args.out / 'episode.gif')
+        written.append('episode.gif')
+    print(f'wrote {", ".join(written)} to {args.out}')
+    return 0
