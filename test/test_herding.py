@@ -86,3 +86,38 @@ def test_herding_command_writes_the_summary_figure_and_gif(tmp_path, capsys):
     assert main(['herding', '--out', str(out), '--herder', 'wolf']) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'wolf' in err[0]
+
+
+@pytest.fixture(scope='module')
+def learned():
+    from herd_ros.herding.model_herder import learn_response, record_episodes
+    return learn_response(record_episodes(Setting(14, 1, 0.3)))
+
+
+def test_the_learned_response_flees_the_dog(learned):
+    """Strömbom's sheep flee a dog within r_s = 65 m: the learned mean response H̄(d) to
+    the dog is negative (away from it) over 5–50 m, and the fit kept the dog's profile."""
+    d = np.linspace(5.0, 50.0, 10)
+    assert (np.interp(d, learned.grid, learned.to_dog) < 0).all()
+    assert learned.choices['own_profile_agents'] == ['dog']
+
+
+def test_the_model_herder_is_not_worse_than_strombom(learned):
+    """30 paired episodes (N = 14, n = 7, e = 0.3): success within Strömbom's interval and
+    median time at most 10 % longer (issue 27, acceptance 2's first half)."""
+    from herd_ros.herding.model_herder import ModelHerder
+    st = Setting(14, 1, 0.3)
+    base = run_episodes(st, strombom_herder, range(30))
+    ours = run_episodes(st, ModelHerder(learned), range(30))
+    k0, k1 = int(base['success'].sum()), int(ours['success'].sum())
+    lo, hi = wilson_interval(k0, 30)
+    assert k1 / 30 >= lo, (k0, k1)
+    t0 = np.median(base['steps'][base['success']])
+    t1 = np.median(ours['steps'][ours['success']])
+    assert t1 <= 1.1 * t0, (t0, t1)
+
+
+def test_animals_of_the_other_family_are_herded_too():
+    st = Setting(14, 1, 0.3, family='herd-law')
+    result = run_episodes(st, strombom_herder, range(8))
+    assert result['success'].mean() >= 0.75

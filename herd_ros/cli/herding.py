@@ -15,7 +15,7 @@ from herd_ros.errors import HerdInputError
 
 HELP = ('herding benchmark: herders (Strömbom\'s shepherd, ...) drive simulated herds into a '
         'goal; success rates with Wilson intervals, figure and GIF')
-HERDERS = ('strombom',)
+HERDERS = ('strombom', 'model')
 
 
 def _ints(text: str, option: str) -> list[int]:
@@ -46,24 +46,46 @@ def add_arguments(p):
     p.add_argument('--neighbours', default='half',
                    help='cohesion: the n nearest neighbours each animal is drawn to, '
                         'comma-separated; "half" = half the herd (the paper\'s cohesive flock)')
+    p.add_argument('--family', default='strombom',
+                   help='the animals\' law, comma-separated: strombom (Strömbom\'s sheep) or '
+                        'herd-law (the shared herd law with a driver profile; the model '
+                        'herder is always fitted on Strömbom\'s sheep, so this is a law it '
+                        'was not told)')
     p.add_argument('--seeds', type=int, default=200,
                    help='episodes per setting (seeds 0..S-1, the same for every herder)')
     p.add_argument('--herder', default='strombom',
-                   help='herders to compare, comma-separated, of: ' + ', '.join(HERDERS))
+                   help='herders to compare, comma-separated, of: strombom (Strömbom et al. '
+                        '2014\'s shepherd), model (receding-horizon control over the '
+                        'learned response to the dog)')
     p.add_argument('--no-gif', action='store_true', help='skip episode.gif')
 
 
 def settings_of(args):
     from herd_ros.herding.benchmark import Setting
     out = []
+    from herd_ros.herding.benchmark import FAMILIES
     cohesion = [None if c.strip() == 'half' else c for c in args.neighbours.split(',')]
-    for n in _ints(args.animals, '--animals'):
-        for d in _ints(args.herders, '--herders'):
-            for e in _floats(args.noise, '--noise'):
-                for c in cohesion:
-                    k = None if c is None else _ints(c, '--neighbours')[0]
-                    out.append(Setting(n, d, e, k))
+    families = [f.strip() for f in args.family.split(',') if f.strip()]
+    if not families or any(f not in FAMILIES for f in families):
+        raise HerdInputError(f'--family takes {", ".join(FAMILIES)}, got {args.family!r}')
+    for family in families:
+        for n in _ints(args.animals, '--animals'):
+            for d in _ints(args.herders, '--herders'):
+                for e in _floats(args.noise, '--noise'):
+                    for c in cohesion:
+                        k = None if c is None else _ints(c, '--neighbours')[0]
+                        out.append(Setting(n, d, e, k, family))
     return out
+
+
+def model_herder(setting):
+    """The model herder of a setting: its response learned from recorded episodes of
+    Strömbom's sheep with the setting's size, herders, noise and cohesion."""
+    from herd_ros.herding.benchmark import Setting
+    from herd_ros.herding.model_herder import ModelHerder, learn_response, record_episodes
+    learn_on = Setting(setting.n_animals, setting.n_herders, setting.noise,
+                       setting.n_neighbours)
+    return ModelHerder(learn_response(record_episodes(learn_on)))
 
 
 def run(args) -> int:
@@ -75,14 +97,14 @@ def run(args) -> int:
         raise HerdInputError(f'--herder takes {", ".join(HERDERS)}, got {args.herder!r}')
     if args.seeds < 1:
         raise HerdInputError(f'--seeds must be at least 1, got {args.seeds}')
-    policies = {'strombom': strombom_herder}
     settings = settings_of(args)
     args.out.mkdir(parents=True, exist_ok=True)
     rows, shown = [], {}
     for st in settings:
         for name in herders:
+            policy = strombom_herder if name == 'strombom' else model_herder(st)
             bar = progress(total=st.budget, desc=f'{name} {st.label()}', unit='step')
-            result = run_episodes(st, policies[name], range(args.seeds),
+            result = run_episodes(st, policy, range(args.seeds),
                                   record=0 if not shown.get(name) else None,
                                   progress=bar.update)
             bar.close()

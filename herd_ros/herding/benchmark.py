@@ -42,14 +42,24 @@ def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, floa
             1.0 if successes == n else min(1.0, centre + half))
 
 
+FAMILIES = ('strombom', 'herd-law')
+
+
 @dataclass(frozen=True)
 class Setting:
-    """One benchmark setting: animals, herders, the animals' noise e and cohesion n."""
+    """One benchmark setting: animals, herders, the animals' noise e and cohesion n, and
+    the animals' law: ``'strombom'`` (Strömbom's sheep) or ``'herd-law'`` (a law of this
+    project's other family, :func:`herd_law_animals`)."""
 
     n_animals: int
     n_herders: int = 1
     noise: float = 0.3
     n_neighbours: int | None = None      # None: half the herd
+    family: str = 'strombom'
+
+    def __post_init__(self):
+        if self.family not in FAMILIES:
+            raise ValueError(f'family must be one of {FAMILIES}, got {self.family!r}')
 
     @property
     def neighbours(self) -> int:
@@ -63,8 +73,44 @@ class Setting:
         return SheepParams(n_neighbours=self.neighbours, e=self.noise)
 
     def label(self) -> str:
+        law = '' if self.family == 'strombom' else f' {self.family}'
         return (f'N={self.n_animals} herders={self.n_herders} e={self.noise:g} '
-                f'n={self.neighbours}')
+                f'n={self.neighbours}{law}')
+
+
+def herd_law_animals(setting: Setting):
+    """Animals of another family than Strömbom's: the shared herd law with a driver
+    profile of :func:`~herd_ros.synthesis.known_truth.make_driven_truth` (damping 0.85–0.95,
+    cohesion F(d) = 0.03 (d − 5)/5 e^(−d/15) within 40 m, flight H(d) = −0.25 e^(−d/15)
+    from every herder within 60 m, Gaussian noise of std 0.1 × e/0.3 m/s), one agent per
+    herder added as a distinguished agent. Returns the model (animals first)."""
+    import dataclasses
+
+    from herd_ros.synthesis.known_truth import make_driven_truth
+    N, D = setting.n_animals, setting.n_herders
+    base, _ = make_driven_truth(N, seed=setting.n_animals, noise_std=0.1 * setting.noise / 0.3)
+    dogs = [f'herder_{k + 1}' for k in range(D)]
+    idx = list(range(N)) + [N] * D                     # every herder is the truth's dog
+    own = np.repeat(base.own_coef[idx, :1], D, axis=1)
+    own[N:] = 0.0
+    return dataclasses.replace(
+        base, agents=base.agents[:N] + dogs, damping=base.damping[idx],
+        profile_coef=base.profile_coef[idx], bases=[base.bases[i] for i in idx],
+        field_u=[base.field_u[i] for i in idx], field_v=[base.field_v[i] for i in idx],
+        noise_cov=base.noise_cov[idx], own_agents=dogs, own_coef=own, theta_se=None)
+
+
+def animal_step(setting: Setting, P, H, dogs, sheep: SheepParams, rng, law=None):
+    """One step of the animals of every episode: Strömbom's sheep (H: headings) or the herd
+    law (H: velocities; p^{τ+1} = p^τ + u^τ, u^{τ+1} = the law's + noise)."""
+    if setting.family == 'strombom':
+        return sheep_step(P, H, dogs, sheep, rng)
+    N = P.shape[1]
+    pos = np.concatenate([P, dogs], axis=1)
+    vel = np.concatenate([H, np.zeros_like(dogs)], axis=1)
+    u = law.next_velocity(vel, pos)[:, :N]
+    std = np.sqrt(law.noise_cov[:N, 0, 0])
+    return P + H, u + rng.normal(size=u.shape) * std[None, :, None]
 
 
 def initial_state(setting: Setting, seeds) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -83,7 +129,8 @@ def initial_state(setting: Setting, seeds) -> tuple[np.ndarray, np.ndarray, np.n
             if np.hypot(*(q - centre)) >= 30.0 + START_BOX / 2:
                 d.append(q)
         P.append(p)
-        H.append(np.column_stack([np.cos(a), np.sin(a)]))
+        H.append(np.column_stack([np.cos(a), np.sin(a)]) if setting.family == 'strombom'
+                 else np.zeros((setting.n_animals, 2)))
         dogs.append(np.array(d))
     return np.array(P), np.array(H), np.array(dogs)
 
@@ -117,6 +164,7 @@ def run_episodes(setting: Setting, herder, seeds, shepherd: ShepherdParams = She
     counted = np.zeros(S)
     path = np.zeros(S)
     state: dict = {}
+    law = herd_law_animals(setting) if setting.family == 'herd-law' else None
     frames = [] if record is not None else None
     for t in range(setting.budget):
         live = np.flatnonzero(~done)              # only the episodes still running
@@ -131,7 +179,7 @@ def run_episodes(setting: Setting, herder, seeds, shepherd: ShepherdParams = She
         targets = herder(p, d, goal, sheep, shepherd, state)
         new_d = move_herders(d, targets, p, sheep, shepherd, rng)
         path[live] += np.sqrt(((new_d - d) ** 2).sum(-1)).mean(axis=1)
-        P[live], H[live] = sheep_step(p, h, d, sheep, rng)
+        P[live], H[live] = animal_step(setting, p, h, d, sheep, rng, law)
         dogs[live] = new_d
         inside = (np.sqrt(((P[live] - goal) ** 2).sum(-1)) <= GOAL_RADIUS).all(axis=1)
         steps[live[inside]] = t + 1

@@ -13,36 +13,42 @@ import numpy as np  # noqa: E402
 from herd_ros.herding.benchmark import FIELD, GOAL, GOAL_RADIUS  # noqa: E402
 
 
+def _key(row) -> tuple:
+    s = row['setting']
+    return s['n_animals'], s['n_herders'], s['noise'], s['neighbours'], s.get('family',
+                                                                             'strombom')
+
+
 def success_figure(rows: list, path: Path):
-    """Success rate per setting, one bar per herder, with the 95 % interval."""
-    settings = []
-    for r in rows:
-        key = r['setting']['n_animals'], r['setting']['n_herders'], r['setting']['noise'], \
-            r['setting']['neighbours']
-        if key not in settings:
-            settings.append(key)
+    """Per setting, one bar per herder: the success rate with its 95 % interval (left) and
+    the median time of the successful episodes (right)."""
+    settings = list(dict.fromkeys(_key(r) for r in rows))
     herders = list(dict.fromkeys(r['herder'] for r in rows))
     width = 0.8 / len(herders)
-    fig, ax = plt.subplots(figsize=(max(5.0, 1.2 * len(settings) + 2), 3.8))
+    fig, (ax, ax_t) = plt.subplots(1, 2, figsize=(max(8.0, 2.2 * len(settings) + 3), 3.9))
     for h, name in enumerate(herders):
-        xs, ys, lo, hi = [], [], [], []
+        xs, ys, lo, hi, ts = [], [], [], [], []
         for r in rows:
             if r['herder'] != name:
                 continue
-            s = r['setting']
-            k = settings.index((s['n_animals'], s['n_herders'], s['noise'], s['neighbours']))
-            xs.append(k + (h - (len(herders) - 1) / 2) * width)
+            xs.append(settings.index(_key(r)) + (h - (len(herders) - 1) / 2) * width)
             ys.append(r['success'])
             lo.append(max(0.0, r['success'] - r['ci'][0]))
             hi.append(max(0.0, r['ci'][1] - r['success']))
+            ts.append(r['median_time_s'] if r['median_time_s'] is not None else np.nan)
         ax.bar(xs, ys, width, yerr=[lo, hi], capsize=3, label=name)
-    ax.set_xticks(range(len(settings)))
-    ax.set_xticklabels([f'N={n}\n{d} herder{"s" if d > 1 else ""}\ne={e:g} n={k}'
-                        for n, d, e, k in settings], fontsize=7)
+        ax_t.bar(xs, ts, width, label=name)
+    labels = [f'N={n}, {d} herder{"s" if d > 1 else ""}\ne={e:g} n={k}'
+              + ('' if fam == 'strombom' else f'\n{fam}')
+              for n, d, e, k, fam in settings]
+    for a in (ax, ax_t):
+        a.set_xticks(range(len(settings)))
+        a.set_xticklabels(labels, fontsize=7)
+        a.legend(fontsize=8)
     ax.set_ylim(0, 1.05)
     ax.set_ylabel('success (95 % Wilson interval)')
-    ax.legend(fontsize=8)
-    ax.set_title('Herding into a 15 m goal on a 150 m field', fontsize=9)
+    ax_t.set_ylabel('median time to the goal (s)')
+    fig.suptitle('Herding into a 15 m goal on a 150 m field', fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
