@@ -80,6 +80,8 @@ FOLDS = 10
 SCREEN_MAX_AGENTS = 100
 SCREEN_STEPS = 4000
 TERMS = ('damping', 'damping+field', 'damping+interactions', 'damping+interactions+field')
+#: The least relative drop of the CV mean squared error that keeps the velocity alignment.
+ALIGNMENT_MIN_GAIN = 0.01
 #: Velocity memories κ tried on the structure chosen with κ = 1 (:mod:`velocity_memory`).
 MEMORIES = (0.6, 0.35, 0.2)
 
@@ -499,7 +501,8 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
             memory's): an :class:`~herd_ros.model.alignment.AlignmentKernel`, 'auto' (the
             kernel :func:`default_alignment` makes from the data, unless ``terms`` pins the
             terms), or None (not tried).
-            Kept only if it earns its parameters under the same rule.
+            Kept only if it earns its parameters under the same rule and lowers the CV mean
+            squared error by at least :data:`ALIGNMENT_MIN_GAIN` (1 %).
     """
     memory = check_memory(memory)
     memories = [check_memory(k) for k in memories if float(k) != memory]
@@ -643,6 +646,7 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
     if not used.any():
         raise HerdInputError('no block has the three consecutive steps a sample needs')
     table, chosen = _one_standard_error(candidates, sse, n_params, count, dt)
+    excluded = set()            # scored, shown, not eligible (an alignment that gains too little)
     if isinstance(alignment, str):     # 'auto': tried unless the terms were pinned
         alignment = (default_alignment(runs_positions) if alignment == 'auto' and all_terms
                      else None)
@@ -664,8 +668,15 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
             sse[s] = np.zeros(n_blocks)
             n_params.pop(s, None)
         score(stats_a, group, design, n_align=alignment.size)
+        before = sse[chosen].sum()
         candidates += group
-        table, chosen = _one_standard_error(candidates, sse, n_params, count, dt)
+        # kept only if it also matters: the held-out MSE ALIGNMENT_MIN_GAIN below the
+        # structure it was tried on (a herd without alignment can still show a significant
+        # but negligible gain where its other terms are misspecified); tried ones stay in
+        # the table either way
+        if min(sse[s].sum() for s in group) > (1 - ALIGNMENT_MIN_GAIN) * before:
+            excluded.update(group)
+        table, chosen = _one_standard_error(candidates, sse, n_params, count, dt, excluded)
     # last pass: the velocity memory of the chosen structure (one parameter of the herd)
     if memories:
         own_k = [agents.index(a) for a in chosen.own]
@@ -697,7 +708,7 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
             sse[s_pa] = sum(by_agent[variants[j]][i] for i, j in enumerate(pick))
             n_params[s_pa] = n_params[chosen] + 1.0
             candidates.append(s_pa)
-        table, chosen = _one_standard_error(candidates, sse, n_params, count, dt)
+        table, chosen = _one_standard_error(candidates, sse, n_params, count, dt, excluded)
     total = count[used].sum()
     sel = Selection(law=law, profile=profile, bounds=tuple(float(b) for b in bounds),
                     table=table, folds=folds, samples=int(total),
@@ -709,9 +720,10 @@ def select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float,
     return sel
 
 
-def _one_standard_error(candidates, sse, n_params, count, dt):
+def _one_standard_error(candidates, sse, n_params, count, dt, excluded=frozenset()):
     """The table of candidates (CV RMS, MSE, excess over the best and its standard error,
-    paired over the blocks) and the structure the one-standard-error rule chooses."""
+    paired over the blocks) and the structure the one-standard-error rule chooses among
+    those not ``excluded`` (the best of them is the reference)."""
     used = count > 0
     total = count[used].sum()
     table = []
@@ -721,14 +733,15 @@ def _one_standard_error(candidates, sse, n_params, count, dt):
         table.append({'structure': s, 'n_params': round(n_params.get(s, 0), 2),
                       'rms': dt * np.sqrt(sse[s][used].sum() / total),
                       'mse': sse[s][used].sum() / total})
-    best = min(table, key=lambda r: r['mse'])
+    best = min((r for r in table if r['structure'] not in excluded), key=lambda r: r['mse'])
     nb = int(used.sum())
     for r in table:
         # paired over the blocks: the blocks' own difficulty cancels
         diff = mse_blocks[r['structure']] - mse_blocks[best['structure']]
         r['excess'] = float(r['mse'] - best['mse'])
         r['excess_se'] = float(np.std(diff, ddof=1) / np.sqrt(nb)) if nb > 1 else 0.0
-    eligible = [r for r in table if r['excess'] <= r['excess_se']]
+    eligible = [r for r in table if r['excess'] <= r['excess_se']
+                and r['structure'] not in excluded]
     return table, min(eligible, key=lambda r: (r['n_params'], r['mse']))['structure']
 
 
