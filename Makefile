@@ -30,11 +30,12 @@ export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)$(if $(AMENT_PREFIX_PATH),:$(AMENT_
 export MPLBACKEND := Agg
 export PYTHONUNBUFFERED := 1
 
-.PHONY: help setup demo test bench clean
+.PHONY: help setup demo test test-fast bench clean
 
 help:
 	@echo "make demo   set up .venv and run the demo on the shipped real herd (19 baboons; writes demo_out/)"
 	@echo "make test   set up .venv and run the test suite"
+	@echo "make test-fast  the tests that need no ROS node, package build or long statistics (the inner loop)"
 	@echo "make bench  set up .venv and run the benchmarks (medians, see README Performance)"
 	@echo "make setup  only create/update .venv (idempotent)"
 
@@ -57,6 +58,9 @@ demo: install-self
 
 test: install-self
 	$(PY) -m pytest -q -ra
+
+test-fast: install-self
+	$(PY) -m pytest -q -ra -m "not ros and not slow and not build"
 
 bench: install-self
 	$(PIP) install $(BENCH_DEPS)

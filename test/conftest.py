@@ -85,3 +85,25 @@ def kernels(request, monkeypatch):
               else request.getfixturevalue('aot_kernels'))
     monkeypatch.setattr(collar_bank, 'KERNELS', chosen)     # the herd clock's too
     return chosen
+
+
+#: fixtures that start ROS nodes or installed console scripts
+_ROS_FIXTURES = {'ros_env', 'console_script', 'ros'}
+
+
+def pytest_collection_modifyitems(config, items):
+    """Markers that say what a test needs, so ``make test-fast`` can leave those out:
+    ``ros`` for a test that starts rclpy nodes (in process: its module imports rclpy or the
+    ROS harness; or as processes: it takes ``ros_env``/``console_script``), ``build`` for
+    the colcon/setuptools package builds. ``make test`` runs everything."""
+    modules = {}
+    for item in items:
+        path = Path(str(item.fspath))
+        if path not in modules:
+            text = path.read_text(encoding='utf-8') if path.exists() else ''
+            modules[path] = ('import rclpy' in text or 'ros_harness' in text
+                             or 'from rclpy' in text)
+        if path.name == 'test_package_build.py':
+            item.add_marker(pytest.mark.build)
+        if modules[path] or _ROS_FIXTURES & set(getattr(item, 'fixturenames', ())):
+            item.add_marker(pytest.mark.ros)
