@@ -1,4 +1,5 @@
-"""ament_python build of herd_ros: `colcon build` on a ROS 2 Jazzy install, `pip install .` on the pip path."""
+"""ament_python build of herd_ros: `colcon build` on a ROS 2 Jazzy install, `pip install .`
+on the pip path."""
 import os
 import sys
 from glob import glob
@@ -60,8 +61,8 @@ setup(
         ('share/' + package_name + '/bags/cows_3x1h', sorted(glob('bags/cows_3x1h/*'))),
         ('share/' + package_name + '/bags/baboons_1h', sorted(glob('bags/baboons_1h/*'))),
     ],
-    install_requires=['setuptools', 'numpy', 'scipy', 'pandas', 'numba', 'filterpy', 'rosbags', 'PyYAML',
-                      'matplotlib', 'tqdm'],
+    install_requires=['setuptools', 'numpy', 'scipy', 'pandas', 'numba', 'filterpy', 'rosbags',
+                      'PyYAML', 'matplotlib', 'tqdm'],
     ext_modules=EXT_MODULES,
     cmdclass=CMDCLASS,
     zip_safe=False,

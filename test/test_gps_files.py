@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from herd_ros.errors import HerdInputError
-from herd_ros.io.gps_files import read_fix_file, read_gps_csv, read_gpx, read_movebank_csv, sniff_format
+from herd_ros.io.gps_files import (read_fix_file, read_gps_csv, read_gpx, read_movebank_csv,
+                                   sniff_format)
 
 GPX = """<?xml version="1.0" encoding="UTF-8"?>
 <gpx version="1.1" creator="test" xmlns="http://www.topografix.com/GPX/1/1">

@@ -264,7 +264,7 @@ def _print_summary(fit, summary, args):
     print(f'one-step RMS (m) on {ev} data: model / constant velocity / stay-put / damping '
           f'only' + (' / last raw fix (GPS input: the fix before the tick, no filter)'
                      if raw else '') + '; whiteness = fraction of lags inside the 90 % '
-          f'band, Ljung-Box Q')
+          'band, Ljung-Box Q')
     print(f'{"agent":>12} {"damping":>16} {"model":>8} {"const-v":>8} {"stay":>8} '
           f'{"damp":>8} ' + (f'{"raw fix":>8} ' if raw else '')
           + f'{"white v":>8} {"white w":>8} {"LB v":>10} {"LB w":>10}')

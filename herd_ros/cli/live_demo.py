@@ -1,9 +1,10 @@
 """The whole herd graph in one process (what ``herd-ros demo`` runs on the pip path).
 
 replay → gps_ingest → estimator → controller → fleet_sim, composed on one executor: the
-same nodes and topics as ``launch/herd.launch.py``. Every node reads its own section of one parameters file (the ROS way: ``--ros-args --params-file``), and all but the
-replay follow the bag's ``/clock`` (``use_sim_time``), so the robots live in the cows' time
-while the bag plays faster than real time.
+same nodes and topics as ``launch/herd.launch.py``. Every node reads its own section of one
+parameters file (the ROS way: ``--ros-args --params-file``), and all but the replay follow
+the bag's ``/clock`` (``use_sim_time``), so the robots live in the cows' time while the bag
+plays faster than real time.
 
 Nothing in it is specific to one herd: the datum, the herd clock, the field, the fence, the
 robots' start and speed and the replay rate come from the bag

@@ -96,7 +96,8 @@ def limit_acceleration(target: np.ndarray, current: np.ndarray, max_accel: float
 
 @dataclass
 class FleetState:
-    """N robots: positions (N, 2) m in ``map``, yaw (N,) rad CCW from east, world velocity (N, 2)."""
+    """N robots: positions (N, 2) m in ``map``, yaw (N,) rad CCW from east, world velocity
+    (N, 2)."""
 
     positions: np.ndarray
     yaw: np.ndarray

@@ -18,10 +18,11 @@ and, with the shared law, the interaction candidates again with one **distinguis
 given its own profile (a dog driving sheep; :mod:`herd_ros.model.shared_law`): unless the
 user names them, :func:`screen_for_driver` nominates the agent whose own profile would
 explain most of the others' one-step error, and cross-validation keeps it only if it earns
-its parameters like any other term; each field at a few resolutions (:func:`field_grids`) and each with a ridge λ from
-:data:`RIDGES` (the damping-only model with the smallest only: a ridge on the damping alone
-just pulls it towards stay-put) (λ as in :func:`~herd_ros.estimation.batch_ls.fit_agent`: a penalty
-λ‖Φ_j‖²θ_j² on every coefficient, the same as a ridge on standardised columns).
+its parameters like any other term; each field at a few resolutions (:func:`field_grids`)
+and each with a ridge λ from :data:`RIDGES` (the damping-only model with the smallest only:
+a ridge on the damping alone just pulls it towards stay-put) (λ as in
+:func:`~herd_ros.estimation.batch_ls.fit_agent`: a penalty λ‖Φ_j‖²θ_j² on every coefficient,
+the same as a ridge on standardised columns).
 
 **Blocked cross-validation** (Bergmeir, Hyndman & Koo 2018, for autoregressions; Roberts et
 al. 2017, *Ecography* 40:913, for dependent ecological data): every run is cut into

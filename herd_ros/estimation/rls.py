@@ -35,7 +35,8 @@ of :meth:`HerdRLS.update` is one rank-2 update of every agent (no Python loop ov
    first-order insensitive to rounding errors of K), forgetting included, as one low-rank
    symmetric correction P⁺ = P(/λ) + Z C Zᵀ with Z = [K, M̄ᵀ, Mᵀ] (p × 6) and a 6 × 6 C,
    applied as Σ_k s_k b_k b_kᵀ from the eigenvectors of C: O(p²) per agent, one pass over
-   P, symmetric to the last bit (no ½(P + Pᵀ) pass needed). ``joseph=False`` uses the algebraically equal single rank-2 correction
+   P, symmetric to the last bit (no ½(P + Pᵀ) pass needed). ``joseph=False`` uses the
+   algebraically equal single rank-2 correction
 
        P⁺ = P̄ − M̄ᵀ S⁻¹ M̄ = P + Mᵀ W M,   M̄ = A M,  W = c S₀⁺ − Aᵀ S⁻¹ A  (2 × 2),
 

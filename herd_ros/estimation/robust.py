@@ -63,7 +63,8 @@ def mahalanobis2(residuals: np.ndarray, q: np.ndarray) -> np.ndarray:
 def robust_noise_cov(residuals: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Q from weighted residuals, consistent for Gaussian noise (module docstring)."""
     w = np.asarray(weights, dtype=float)
-    q = (w[:, None, None] * residuals[:, :, None] * residuals[:, None, :]).sum(0) / max(w.sum(), 1e-300)
+    q = ((w[:, None, None] * residuals[:, :, None] * residuals[:, None, :]).sum(0)
+         / max(w.sum(), 1e-300))
     return q / _CONSISTENCY
 
 

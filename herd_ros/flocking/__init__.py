@@ -1,1 +1,2 @@
-"""Olfati-Saber (2006) / La and Sheng (2009) flocking with target tracking: law, scenarios, metrics."""
+"""Olfati-Saber (2006) / La and Sheng (2009) flocking with target tracking: law, scenarios,
+metrics."""

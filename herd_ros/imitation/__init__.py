@@ -1,1 +1,2 @@
-"""Swarm imitation (Rahman, White et al., ACC 2023): policies, Boids simulator, learning, metrics."""
+"""Swarm imitation (Rahman, White et al., ACC 2023): policies, Boids simulator, learning,
+metrics."""

@@ -308,7 +308,8 @@ def refine_v_max(theta: np.ndarray, targets: np.ndarray, gains: np.ndarray, v_st
     r_unsat = np.einsum('nd,nd->n', uu - yy, uu - yy)
     y2 = np.einsum('nd,nd->n', yy, yy)
     c_unsat = np.concatenate([[0.0], np.cumsum(r_unsat)])       # Σ over the first m
-    tail = lambda x: np.concatenate([np.cumsum(x[::-1])[::-1], [0.0]])  # Σ from m on
+    def tail(x):                                                # Σ from m on
+        return np.concatenate([np.cumsum(x[::-1])[::-1], [0.0]])
     b_sat, c_sat = tail(uhat_y), tail(y2)
     n = len(sp)
     hi = max(float(sp[-1]), v_start)

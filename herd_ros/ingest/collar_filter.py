@@ -79,9 +79,10 @@ in random directions never form a chain.
 
 **Lost tracks** (start of data, a late-starting collar, or a collar silent — no fix with a
 position at all — for longer than ``reinit_after_gap``; a long run of *rejected* fixes is a
-burst, handled above, not a silence): the old velocity means nothing, and neither does one lone fix, which
-may be an outlier. The fixes form candidate chains and the first with ``confirm_fixes_lost``
-(default 2) consistent fixes initialises the track; until then the collar has no estimate.
+burst, handled above, not a silence): the old velocity means nothing, and neither does one
+lone fix, which may be an outlier. The fixes form candidate chains and the first with
+``confirm_fixes_lost`` (default 2) consistent fixes initialises the track; until then the
+collar has no estimate.
 
 Initialisation (first fix of a confirmed chain): position = the fix with covariance R,
 velocity 0 with std ``initial_velocity_std`` (default = ``max_speed``).

@@ -346,8 +346,9 @@ def read_fix_bag(path, agents=None):
             if m and c.msgtype == NAVSATFIX and (agents is None or m['agent'] in agents):
                 conns.append(c)
         if not conns:
+            topics = ', '.join(sorted({c.topic for c in reader.connections})) or 'none'
             raise HerdInputError(f'{path}: no {NAVSATFIX} topic /herd/<agent>/fix in the bag '
-                                 f'(topics: {", ".join(sorted({c.topic for c in reader.connections})) or "none"})')
+                                 f'(topics: {topics})')
         rows = {k: [] for k in ('time', 'agent', 'lat', 'lon', 'alt', 'status',
                                 'position_covariance_type', 'cov_ee', 'cov_en', 'cov_nn',
                                 'receive_time')}

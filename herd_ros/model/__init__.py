@@ -1,1 +1,2 @@
-"""The herd model of Schwager, Anderson and Rus (2007): basis, interaction laws, regressors, model file."""
+"""The herd model of Schwager, Anderson and Rus (2007): basis, interaction laws, regressors,
+model file."""

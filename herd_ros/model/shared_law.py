@@ -79,9 +79,8 @@ from scipy.spatial import cKDTree
 from herd_ros.errors import HerdInputError
 from herd_ros.model.distance_profile import (  # noqa: F401 (re-exported)
     DEFAULT_PROFILE_SIZE, DEFAULT_RADIUS, DistanceProfile)
-from herd_ros.model.model_file import (add_model_meta, check_agent_id, dump_parameters,
-                                       float_list, load_model_body, read_alignment,
-                                       read_model_meta, write_atomic)
+from herd_ros.model.model_file import (add_model_meta, check_agent_id, float_list,
+                                       load_model_body, read_alignment, read_model_meta)
 from herd_ros.model.rbf_field import RbfBasis, agent_fields
 from herd_ros.model.space_use_field import home_drift
 from herd_ros.model.velocity_memory import VelocityMemory

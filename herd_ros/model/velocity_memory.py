@@ -133,7 +133,8 @@ class VelocityMemory:
     def predict_one_step(self, positions: np.ndarray) -> np.ndarray:
         """Eq. 8 for every step of a run: positions (T, N, 2) -> p̂ (T−2, N, 2) for τ+2 = 2..T−1.
 
-        p̂^{τ+2} = p^{τ+1} + Δt (a ū^τ + Σ f(p^τ) + g(p^τ))   (ū = u^τ = (p^{τ+1} − p^τ)/Δt at κ = 1).
+        p̂^{τ+2} = p^{τ+1} + Δt (a ū^τ + Σ f(p^τ) + g(p^τ))
+        (ū = u^τ = (p^{τ+1} − p^τ)/Δt at κ = 1).
         """
         p = np.asarray(positions, dtype=float)
         _, ubar = self.memory_velocities(p)

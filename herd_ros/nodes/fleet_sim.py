@@ -21,10 +21,9 @@ from rclpy.time import Time
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from herd_ros.ingest.geodesy import enu_to_geodetic
-from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, ParameterError,
-                                       declare_parameters, describe_remaining_parameters,
-                                       diagnostic_array, diagnostic_status, exit_process,
-                                       run_node)
+from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, declare_parameters,
+                                       describe_remaining_parameters, diagnostic_array,
+                                       diagnostic_status, exit_process, run_node)
 from herd_ros.params.fleet_sim import PARAMS as DEFAULTS, FleetSimConfig
 from herd_ros.simulation.fleet import FleetSimulator
 

@@ -58,7 +58,8 @@ def make_truth_model(n_agents: int, seed=0, grid: tuple[int, int] = (6, 6),
 
 def initial_positions(model: HerdModel, seed=0, spread: float = 30.0,
                       min_separation: float = 5.0) -> np.ndarray:
-    """Random p^0 (N, 2) about the centre of the first agent's grid, agents ≥ min_separation apart."""
+    """Random p^0 (N, 2) about the centre of the first agent's grid, agents ≥ min_separation
+    apart."""
     rng = np.random.default_rng(seed)
     c = model.laws[model.agents[0]].basis.centers.mean(axis=0)
     n = model.n_agents

@@ -35,8 +35,8 @@ def main():
                 cells = []
                 for k in ('distance', 'spread', 'pace'):
                     r = fr[k]
-                    cells.append(f'{100 * r["relative"]:+5.0f} % [{100 * (r["min"] / r["data"] - 1):+.0f},'
-                                 f' {100 * (r["max"] / r["data"] - 1):+.0f}]')
+                    lo, hi = 100 * (r['min'] / r['data'] - 1), 100 * (r['max'] / r['data'] - 1)
+                    cells.append(f'{100 * r["relative"]:+5.0f} % [{lo:+.0f}, {hi:+.0f}]')
                 print(f'{herd:<8} {name:<18} {one["herd"]:>9.3f} ' + ' '.join(
                     f'{c:>22}' for c in cells), flush=True)
     print('relative to the held-out half: median of 5 seeds [min, max]; reproduce: '
