@@ -219,16 +219,13 @@ def _print_statistics(statistics: dict, agents) -> None:
 def _print_alignment(model) -> None:
     """The fitted alignment kernel of the herd (mean weights) at its bumps, with the
     standard error of the mean."""
-    al = model.alignment
-    if al is None:
+    if model.alignment is None:
         return
-    k = al.kernel
-    centres = np.asarray(k.profile.centers)
-    herd = al.coef.mean(axis=0)
-    se = np.sqrt((al.se ** 2).sum(axis=0)) / len(al.coef) if al.se is not None else None
-    cells = ', '.join(f'{c:.0f} m: {w:+.3f}' + (f' ± {s:.3f}' if se is not None else '')
-                      for c, w, s in zip(centres, herd, se if se is not None else herd))
-    print(f'alignment ({k.describe()}): herd kernel weights at the bumps {cells}')
+    s = model.alignment.summary(model.agents)
+    cells = ', '.join(f'{c:.0f} m: {w:+.3f}' + (f' ± {e:.3f}' if np.isfinite(e) else '')
+                      for c, w, e in zip(s['bump_centres_m'], s['herd_weights'],
+                                         s['herd_weights_se']))
+    print(f'alignment ({s["kernel"]}): herd kernel weights at the bumps {cells}')
 
 
 def _print_selection(selection, dt, rows: int = 8):

@@ -18,23 +18,15 @@ HELP = ('herding benchmark: herders (Strömbom\'s shepherd, ...) drive simulated
 HERDERS = ('strombom', 'model')
 
 
-def _ints(text: str, option: str) -> list[int]:
+def _values(text: str, option: str, kind=int) -> list:
+    """Comma-separated integers ≥ 1 (``kind`` int) or numbers ≥ 0 (float); one clear error."""
+    what, least = ('integers', 1) if kind is int else ('numbers', 0)
     try:
-        values = [int(v) for v in text.split(',') if v.strip()]
+        values = [kind(v) for v in text.split(',') if v.strip()]
     except ValueError:
-        raise HerdInputError(f'{option} takes comma-separated integers, got {text!r}') from None
-    if not values or min(values) < 1:
-        raise HerdInputError(f'{option} needs positive integers, got {text!r}')
-    return values
-
-
-def _floats(text: str, option: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.split(',') if v.strip()]
-    except ValueError:
-        raise HerdInputError(f'{option} takes comma-separated numbers, got {text!r}') from None
-    if not values or min(values) < 0:
-        raise HerdInputError(f'{option} needs numbers ≥ 0, got {text!r}')
+        raise HerdInputError(f'{option} takes comma-separated {what}, got {text!r}') from None
+    if not values or min(values) < least:
+        raise HerdInputError(f'{option} needs {what} ≥ {least}, got {text!r}')
     return values
 
 
@@ -69,11 +61,11 @@ def settings_of(args):
     if not families or any(f not in FAMILIES for f in families):
         raise HerdInputError(f'--family takes {", ".join(FAMILIES)}, got {args.family!r}')
     for family in families:
-        for n in _ints(args.animals, '--animals'):
-            for d in _ints(args.herders, '--herders'):
-                for e in _floats(args.noise, '--noise'):
+        for n in _values(args.animals, '--animals'):
+            for d in _values(args.herders, '--herders'):
+                for e in _values(args.noise, '--noise', float):
                     for c in cohesion:
-                        k = None if c is None else _ints(c, '--neighbours')[0]
+                        k = None if c is None else _values(c, '--neighbours')[0]
                         out.append(Setting(n, d, e, k, family))
     return out
 

@@ -107,11 +107,13 @@ def sheep_step(P: np.ndarray, H: np.ndarray, dogs: np.ndarray, params: SheepPara
     return Pn, Hn
 
 
-def herd_is_gathered(P: np.ndarray, r_a: float) -> np.ndarray:
-    """Every sheep within f(N) = r_a N^(2/3) of the centre of mass, per episode (S,)."""
+def herd_is_gathered(P: np.ndarray, r_a: float, dist: np.ndarray | None = None) -> np.ndarray:
+    """Every sheep within f(N) = r_a N^(2/3) of the centre of mass, per episode (S,);
+    ``dist`` (S, N): the sheep's distances to it, when already known."""
     N = P.shape[1]
-    gcm = P.mean(axis=1, keepdims=True)
-    return (np.sqrt(((P - gcm) ** 2).sum(-1)) <= r_a * N ** (2.0 / 3.0)).all(axis=1)
+    if dist is None:
+        dist = np.sqrt(((P - P.mean(axis=1, keepdims=True)) ** 2).sum(-1))
+    return (dist <= r_a * N ** (2.0 / 3.0)).all(axis=1)
 
 
 def strombom_targets(P: np.ndarray, dogs: np.ndarray, goal, sheep: SheepParams,
@@ -122,14 +124,14 @@ def strombom_targets(P: np.ndarray, dogs: np.ndarray, goal, sheep: SheepParams,
     gcm = P.mean(axis=1)                                        # (S, 2)
     goal = np.asarray(goal, dtype=float)
     away = _unit(gcm - goal)                                    # from the goal, through Γ
-    driving = herd_is_gathered(P, sheep.r_a)
+    dist = np.sqrt(((P - gcm[:, None, :]) ** 2).sum(-1))        # (S, N)
+    driving = herd_is_gathered(P, sheep.r_a, dist)
     angles = np.radians(np.linspace(-shepherd.arc_deg, shepherd.arc_deg, D)) if D > 1 \
         else np.zeros(1)
     cos, sin = np.cos(angles), np.sin(angles)
     arc = np.stack([away[:, None, 0] * cos - away[:, None, 1] * sin,
                     away[:, None, 0] * sin + away[:, None, 1] * cos], axis=-1)   # (S, D, 2)
     drive = gcm[:, None, :] + sheep.r_a * np.sqrt(N) * arc
-    dist = np.sqrt(((P - gcm[:, None, :]) ** 2).sum(-1))        # (S, N)
     order = np.argsort(-dist, axis=1)[:, :D]                    # the D furthest
     far = np.take_along_axis(P, order[..., None], axis=1)       # (S, D, 2)
     collect = far + sheep.r_a * _unit(far - gcm[:, None, :])

@@ -127,37 +127,32 @@ def _sparse_columns(p, u, usable, rows, profile, neighbourhood, nearest):
     B = profile.size
     ok = np.flatnonzero(usable)
     full = np.zeros((n, B, 2))
+    count = np.zeros(n)
     if len(ok) >= 2:
         tree = cKDTree(p[ok])
-        if neighbourhood == 'radius':             # each pair once: ψ(d) shared, Δu opposite
+        # radius: each pair once (ψ(d) is shared, Δu opposite: it counts for both agents);
+        # nearest: the pairs i → j of each agent's k nearest
+        symmetric = neighbourhood == 'radius'
+        if symmetric:
             pairs = tree.query_pairs(profile.radius, output_type='ndarray')
-            a, b_ = ok[pairs[:, 0]], ok[pairs[:, 1]]
-            d = np.sqrt(((p[b_] - p[a]) ** 2).sum(-1))
-            keep = d > 0
-            a, b_, d = a[keep], b_[keep], d[keep]
-            w = profile.features(d)[..., None] * (u[b_] - u[a])[:, None, :]
-            for b in range(B):
-                for k in range(2):
-                    full[:, b, k] = (np.bincount(a, w[:, b, k], minlength=n)
-                                     - np.bincount(b_, w[:, b, k], minlength=n))
-            count = np.bincount(a, minlength=n) + np.bincount(b_, minlength=n)
-            return (full / np.maximum(count, 1)[:, None, None])[rows]
+            i, j = ok[pairs[:, 0]], ok[pairs[:, 1]]
         else:
             k = min(nearest, len(ok) - 1)
             d, idx = tree.query(p[ok], k=k + 1, distance_upper_bound=profile.radius)
             found = np.isfinite(d[:, 1:])                   # column 0: the agent itself
-            i = np.repeat(ok, k)[found.ravel()]
-            j = ok[idx[:, 1:][found]]
-        off = p[j] - p[i]
-        d = np.sqrt((off ** 2).sum(-1))
+            i, j = np.repeat(ok, k)[found.ravel()], ok[idx[:, 1:][found]]
+        d = np.sqrt(((p[j] - p[i]) ** 2).sum(-1))
         keep = d > 0
         i, j, d = i[keep], j[keep], d[keep]
         w = profile.features(d)[..., None] * (u[j] - u[i])[:, None, :]     # (P, B, 2)
         for b in range(B):
             for k in range(2):
                 full[:, b, k] = np.bincount(i, w[:, b, k], minlength=n)
-        full /= np.maximum(np.bincount(i, minlength=n), 1)[:, None, None]
-    return full[rows]
+                if symmetric:
+                    full[:, b, k] -= np.bincount(j, w[:, b, k], minlength=n)
+        count = np.bincount(i, minlength=n) + (np.bincount(j, minlength=n) if symmetric
+                                               else 0)
+    return (full / np.maximum(count, 1)[:, None, None])[rows]
 
 
 @dataclass(frozen=True)
