@@ -63,6 +63,10 @@ class FitOptions:
         field: 'auto', 'fitted' or 'space-use'; ``noise``: 'auto', 'gaussian', 'regimes'.
         robust: outlier-robust IRLS; ``se``: 'sandwich' or 'ols' standard errors.
         folds: cross-validation blocks per run; ``min_visits``: samples a field centre needs.
+        noise_scale: ``'auto'``: each animal's free-run noise calibrated to keep its pace on
+            the training data (:mod:`herd_ros.simulation.pace_calibration`); a positive
+            number: that factor on every animal's noise std (1 = the residuals' noise, the
+            paper's).
         alignment: velocity alignment (:mod:`herd_ros.model.alignment`): 'auto' (tried on
             the chosen structure, kept if cross-validation does), 'off' or 'on' (always);
             ``alignment_neighbourhood`` 'radius' or 'nearest' (``alignment_nearest`` = k).
@@ -82,6 +86,7 @@ class FitOptions:
     se: str = 'sandwich'
     folds: int = FOLDS
     min_visits: int = DEFAULT_MIN_VISITS
+    noise_scale: str | float = 'auto'
     alignment: str = 'auto'
     alignment_neighbourhood: str = 'radius'
     alignment_nearest: int = 7
@@ -94,6 +99,15 @@ class FitOptions:
             raise HerdInputError(f'field must be one of {FIELDS}, got {self.field!r}')
         if self.noise not in NOISES:
             raise HerdInputError(f'noise must be one of {NOISES}, got {self.noise!r}')
+        if self.noise_scale != 'auto':
+            try:
+                value = float(self.noise_scale)
+            except (TypeError, ValueError):
+                value = float('nan')
+            if not (np.isfinite(value) and value > 0):
+                raise HerdInputError(f"noise_scale must be 'auto' or a positive number, got "
+                                     f'{self.noise_scale!r}')
+            self.noise_scale = value
         if self.folds < 2:
             raise HerdInputError(f'folds must be at least 2, got {self.folds}')
 
@@ -248,6 +262,24 @@ class HerdDynamics:
             if regimes['n_regimes'] > 1 and regimes['too_few']:
                 log('noise regimes: too few residuals, Gaussian noise kept for ' + ', '.join(
                     model.agents[i] for i in regimes['too_few']))
+        from herd_ros.simulation.pace_calibration import (calibrate_noise_scale,
+                                                          describe_calibration,
+                                                          with_noise_scale)
+        if o.noise_scale == 'auto':
+            log('noise scale: calibrating each animal\'s free-run noise to its pace ...')
+            cal = calibrate_noise_scale(model, positions)
+            model = with_noise_scale(model, cal['scale'])
+            chosen['noise_scale'] = {
+                'method': 'pace', 'iterations': cal['iterations'],
+                'segments': cal['segments'],
+                'scale': [float(x) for x in cal['scale']],
+                'data_pace': [float(x) for x in cal['data_pace']],
+                'uncalibrated_pace': [float(x) for x in cal['uncalibrated_pace']],
+                'pace': [float(x) for x in cal['sim_pace']]}
+            log(describe_calibration(cal, model.agents))
+        elif o.noise_scale != 1.0:
+            model = with_noise_scale(model, np.full(model.n_agents, float(o.noise_scale)))
+            chosen['noise_scale'] = {'method': 'given', 'scale': float(o.noise_scale)}
         return model
 
     @classmethod

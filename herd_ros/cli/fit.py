@@ -71,6 +71,14 @@ def add_arguments(p):
                         'BIC (for animals that rest and move in bursts); auto = regimes when, '
                         'on a validation tail of the training data, they make the law run '
                         'freely clearly closer to the herd (every statistic), else gaussian')
+    p.add_argument('--noise-scale', default='auto', metavar='auto|S',
+                   help='factor on each animal\'s noise std in free simulation (robots, '
+                        'simulate): auto = calibrated per animal so that the law run freely '
+                        'keeps the animal\'s 10-minute pace on the training data (the track\'s '
+                        'residuals carry the collar\'s error, which a free run would '
+                        'integrate); a number = that factor for every animal (1 = the '
+                        'residuals\' noise, the paper\'s); predictions keep the residuals\' '
+                        'noise')
     p.add_argument('--alignment', choices=('auto', 'off', 'on'), default='auto',
                    help='velocity alignment: each agent matches its neighbours\' velocity '
                         'with a learned distance kernel; auto = tried on the chosen '
@@ -168,7 +176,8 @@ def run(args) -> int:
                          memories=memories, law=None if args.law == 'auto' else args.law,
                          own_agents=own_agents, field=args.field, noise=args.noise,
                          robust=args.loss == 'robust', se=args.se, folds=args.folds,
-                         min_visits=args.min_visits, alignment=args.alignment,
+                         min_visits=args.min_visits, noise_scale=args.noise_scale,
+                         alignment=args.alignment,
                          alignment_neighbourhood=args.alignment_neighbourhood,
                          alignment_nearest=args.alignment_nearest)
     dyn = HerdDynamics(options=options).fit(train, datum=datum, seed=args.seed,

@@ -94,7 +94,7 @@ def learn_response(runs) -> LearnedResponse:
     from herd_ros.herd_dynamics import FitOptions, HerdDynamics
     dyn = HerdDynamics(options=FitOptions(
         law='shared', own_agents=['dog'], terms=['damping+interactions'], grids=[],
-        field='fitted', noise='gaussian', memories=(), alignment='off')).fit(runs)
+        field='fitted', noise='gaussian', memories=(), alignment='off', noise_scale=1.0)).fit(runs)
     m = dyn.model
     animals = slice(0, m.n_agents - 1)                              # the dog is last
     p = np.concatenate([r.positions for r in runs])

@@ -131,6 +131,9 @@ def read_home(center, gain, n_agents: int, where: str):
     return c.reshape(n_agents, 2), k.reshape(n_agents, 2, 2)
 
 
+#: Per-agent positive factors kept in ``meta`` and the model file under the same key.
+PER_AGENT_FACTORS = ('prediction_scale', 'noise_scale')
+
 #: Model-level meta entries stored as two flat lists: (meta key, file keys, reader).
 PAIRED_META = (
     ('noise_regimes', ('noise_regime_cov', 'noise_regime_transition'), read_regimes),
@@ -144,6 +147,10 @@ def add_model_meta(body: dict, model) -> None:
       the 90 % prediction ellipse of
       :func:`~herd_ros.simulation.prediction.prediction_covariance` hold 90 % of the
       training residuals (written by ``herd-ros fit``; 1 if absent);
+    * ``noise_scale`` (one per agent): the factor on the noise std of every free
+      simulation of the law (robots, ``simulate``) that keeps each animal's pace
+      (:mod:`herd_ros.simulation.pace_calibration`; written by ``herd-ros fit``; 1 if
+      absent);
     * ``velocity_memory`` κ (:mod:`herd_ros.model.velocity_memory`): one number for the
       herd or one per agent (agents order); written when some κ < 1, absent = 1, the
       paper's model;
@@ -159,9 +166,9 @@ def add_model_meta(body: dict, model) -> None:
         if meta.get(name) is not None:
             for key, values in zip(keys, meta[name]):
                 body[key] = float_list(np.asarray(values).ravel())
-    scale = meta.get('prediction_scale')
-    if scale is not None:
-        body['prediction_scale'] = float_list(scale)
+    for key in PER_AGENT_FACTORS:
+        if meta.get(key) is not None:
+            body[key] = float_list(meta[key])
     memory = check_memories(meta.get('velocity_memory', 1.0), len(model.agents))
     if (memory != 1.0).any():
         same = (memory == memory[0]).all()
@@ -192,17 +199,17 @@ def read_model_meta(body: dict, n_agents: int, source: str) -> dict:
             meta['velocity_memory'] = check_memories(body['velocity_memory'], n_agents)
         except HerdInputError as err:
             raise HerdInputError(f'{source}: model.{err}') from None
-    if 'prediction_scale' not in body:
-        return meta
-    try:
-        scale = np.asarray(body['prediction_scale'], dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise HerdInputError(f'{source}: model.prediction_scale is not a list of numbers') \
-            from None
-    if len(scale) != n_agents or not (np.isfinite(scale).all() and (scale > 0).all()):
-        raise HerdInputError(f'{source}: model.prediction_scale needs one positive number per '
-                             f'agent ({n_agents})')
-    meta['prediction_scale'] = scale
+    for key in PER_AGENT_FACTORS:
+        if key not in body:
+            continue
+        try:
+            scale = np.asarray(body[key], dtype=float).ravel()
+        except (TypeError, ValueError):
+            raise HerdInputError(f'{source}: model.{key} is not a list of numbers') from None
+        if len(scale) != n_agents or not (np.isfinite(scale).all() and (scale > 0).all()):
+            raise HerdInputError(f'{source}: model.{key} needs one positive number per '
+                                 f'agent ({n_agents})')
+        meta[key] = scale
     return meta
 
 

@@ -207,22 +207,32 @@ class GaussianNoise:
 def noise_for(model, rng=None, scale: float = 1.0):
     """The noise source of a model: :class:`RegimeNoise` when its ``meta`` holds
     ``noise_regimes`` (covariances, transition), else :class:`GaussianNoise` from Q_i;
-    ``scale`` multiplies the noise's standard deviation."""
-    regimes = (getattr(model, 'meta', None) or {}).get('noise_regimes')
+    ``scale`` and, per agent, ``meta['noise_scale']`` (the free-run calibration of
+    :mod:`herd_ros.simulation.pace_calibration`) multiply the noise's standard deviation."""
+    meta = getattr(model, 'meta', None) or {}
+    regimes = meta.get('noise_regimes')
+    factor = float(scale) ** 2 * np.ones(len(model.agents))
+    if meta.get('noise_scale') is not None:
+        factor = factor * np.asarray(meta['noise_scale'], dtype=float) ** 2
     if regimes is None:
-        return GaussianNoise(np.asarray(model.noise_cov) * scale ** 2, rng)
+        return GaussianNoise(np.asarray(model.noise_cov) * factor[:, None, None], rng)
     cov, trans = regimes
-    return RegimeNoise(np.asarray(cov) * scale ** 2, trans, rng)
+    return RegimeNoise(np.asarray(cov) * factor[:, None, None, None], trans, rng)
 
 
 def subset_regimes(meta: dict, index) -> dict:
-    """``meta``'s ``noise_regimes`` for the agents ``index`` (a robot fleet's animals), as
-    a dict to merge into the subset model's meta (empty without regimes)."""
-    regimes = (meta or {}).get('noise_regimes')
-    if regimes is None:
-        return {}
+    """``meta``'s ``noise_regimes`` and ``noise_scale`` for the agents ``index`` (a robot
+    fleet's animals), as a dict to merge into the subset model's meta (empty without
+    them)."""
+    meta = meta or {}
     idx = np.asarray(index)
-    return {'noise_regimes': (np.asarray(regimes[0])[idx], np.asarray(regimes[1])[idx])}
+    out = {}
+    if meta.get('noise_scale') is not None:
+        out['noise_scale'] = np.asarray(meta['noise_scale'], dtype=float)[idx]
+    regimes = meta.get('noise_regimes')
+    if regimes is not None:
+        out['noise_regimes'] = (np.asarray(regimes[0])[idx], np.asarray(regimes[1])[idx])
+    return out
 
 
 @njit(cache=True)
