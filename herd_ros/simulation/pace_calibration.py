@@ -31,9 +31,11 @@ deviation of log pace over the seeds (× √(1 + 1/seeds), the data's draw count
 least 10 % (C3). And
 an animal whose pace barely answers its noise (γ_i < 0.3 at the first step: a law whose
 field or neighbours set the pace) keeps its noise: the noise cannot set that pace, and a
-factor chosen there would only fit chance. The free runs start from evenly spaced snapshots of every training
-run (:func:`segment_starts`), each for at most ``segment_steps`` steps, and the data's pace
-is taken over the same segments.
+factor chosen there would only fit chance.
+
+The free runs start from evenly spaced snapshots of every training run
+(:func:`segment_starts`), each for at most ``segment_steps`` steps, and the data's pace is
+taken over the same segments.
 
 The mean prediction is untouched (one-step skill and the estimator's predictions are the
 same); the prediction covariance keeps Q_i (the one-step residuals are what a prediction is
