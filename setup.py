@@ -46,7 +46,7 @@ def compiled_kernels():
 
 EXT_MODULES, CMDCLASS = compiled_kernels()
 
-NODES = ['gps_ingest', 'estimator', 'controller', 'fleet_sim', 'replay', 'record']
+NODES = ['gps_ingest', 'estimator', 'controller', 'fleet_sim', 'herd_sim', 'replay', 'record']
 
 setup(
     name=package_name,

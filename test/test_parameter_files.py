@@ -8,10 +8,10 @@ import pytest
 import yaml
 
 from herd_ros.params import NODES, Param, markdown_table, problem, render_yaml, table, yaml_value
-from herd_ros.params.controller import FLOCKING_TABLE
+from herd_ros.params.controller import FLOCKING_TABLE, HERDING_TABLE
 
 ROOT = Path(__file__).resolve().parents[1]
-TABLES = [table(n) for n in NODES] + [FLOCKING_TABLE]
+TABLES = [table(n) for n in NODES] + [FLOCKING_TABLE, HERDING_TABLE]
 
 
 @pytest.mark.parametrize('t', TABLES, ids=lambda t: t.config_file)
@@ -38,16 +38,18 @@ def test_config_file_sets_the_defaults(t):
 def test_every_declared_parameter_is_in_a_table():
     """The nodes declare their parameters from these tables (names of the modules' dicts)."""
     from herd_ros.nodes import (controller, estimator, fleet_sim, flocking_mode, gps_ingest,
-                                herd_model_mode, record, replay)
+                                herd_model_mode, herd_sim, herding_mode, record, replay)
     from herd_ros.params import controller as c
     for module, params in [(gps_ingest, table('gps_ingest').params),
                            (estimator, table('estimator').params),
                            (fleet_sim, table('fleet_sim').params),
+                           (herd_sim, table('herd_sim').params),
                            (replay, table('replay').params), (record, table('record').params),
                            (controller, c.COMMON)]:
         assert module.DEFAULTS is params
     assert herd_model_mode.HERD_MODEL_DEFAULTS is c.HERD_MODEL
     assert flocking_mode.FLOCKING_DEFAULTS is c.FLOCKING
+    assert herding_mode.HERDING_DEFAULTS is c.HERDING
 
 
 def test_problem_checks_type_range_and_choices():

@@ -57,11 +57,22 @@ def add_arguments(p):
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--rate', type=float, default=None,
                    help='bag replay speed-up; default: the bag plays in about two minutes')
+    p.add_argument('--herding', action='store_true',
+                   help='instead: the herding graph live (herd_sim -> controller mode herding '
+                        '-> fleet_sim, as launch/herding.launch.py): robots drive simulated '
+                        'sheep into a goal circle; --rate defaults to 20 (simulated seconds '
+                        'per second)')
+    p.add_argument('--animals', type=int, default=14,
+                   help='--herding: number of animals (default 14)')
+    p.add_argument('--herders', type=int, default=1,
+                   help='--herding: number of robots herding (default 1)')
     p.add_argument('--offline', action='store_true',
                    help='offline pipeline instead: ingest, batch fit, validation, simulation')
 
 
 def run(args) -> int:
+    if args.herding:
+        return run_herding(args)
     if args.offline:
         return run_offline(args)
     from herd_ros.cli.live_demo import run_live_demo
@@ -105,6 +116,25 @@ def run(args) -> int:
           f'{summary["model_file"]}; herd file (for ros2 launch herd_ros herd.launch.py '
           f'herd:=...): {args.out}/herd.yaml')
     return 0
+
+
+def run_herding(args) -> int:
+    from herd_ros.cli.herding_demo import run_herding_demo
+    if args.offline or args.bag or args.herd:
+        raise HerdInputError('--herding runs simulated animals: no --offline, --bag or --herd')
+    rate = 20.0 if args.rate is None else args.rate
+    if not rate > 0:
+        raise HerdInputError(f'--rate must be positive, got {rate}')
+    if args.animals < 2 or args.herders < 1:
+        raise HerdInputError('--animals must be at least 2 and --herders at least 1')
+    s = run_herding_demo(args.out, n_animals=args.animals, herders=args.herders, rate=rate,
+                         seed=args.seed)
+    verdict = (f'the herd is inside the goal after {s["time_s"]:.0f} s' if s['success'] else
+               f'the herd is not home within {s["budget_s"]:.0f} s '
+               f'({s["final_inside"]} of {s["n_animals"]} inside)')
+    print(f'\nherding done in {s["wall_time_s"]:.0f} s: {verdict} (simulated time). Report: '
+          f'{args.out}/herding.png, summary.json, herding_herd.csv, herding_robots.csv')
+    return 0 if s['success'] else 1
 
 
 def run_offline(args) -> int:

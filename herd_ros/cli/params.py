@@ -17,15 +17,16 @@ def add_arguments(parser):
                         help='print the config file (with every parameter and its default) '
                              'instead of the table')
     parser.add_argument('--write', metavar='DIR', nargs='?', const='config',
-                        help='write each config/<node>.yaml (and flocking.yaml) under DIR')
+                        help='write each config/<node>.yaml (and flocking.yaml, '
+                             'herding.yaml) under DIR')
 
 
 def _tables(node):
     from herd_ros.params import NODES, table
-    from herd_ros.params.controller import FLOCKING_TABLE
+    from herd_ros.params.controller import FLOCKING_TABLE, HERDING_TABLE
     tables = [table(n) for n in ([node] if node else NODES)]
     if node in (None, 'controller'):
-        tables.append(FLOCKING_TABLE)
+        tables += [FLOCKING_TABLE, HERDING_TABLE]
     return tables
 
 

@@ -19,8 +19,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from herd_ros.herding.strombom import (SheepParams, ShepherdParams, move_herders, sheep_step,
-                                       strombom_targets)
+from herd_ros.herding.strombom import (SheepParams, ShepherdParams, herd_in_goal, move_herders,
+                                       sheep_step, strombom_targets)
 
 FIELD = 150.0
 GOAL = (20.0, 20.0)
@@ -181,7 +181,7 @@ def run_episodes(setting: Setting, herder, seeds, shepherd: ShepherdParams = She
         path[live] += np.sqrt(((new_d - d) ** 2).sum(-1)).mean(axis=1)
         P[live], H[live] = animal_step(setting, p, h, d, sheep, rng, law)
         dogs[live] = new_d
-        inside = (np.sqrt(((P[live] - goal) ** 2).sum(-1)) <= GOAL_RADIUS).all(axis=1)
+        inside = herd_in_goal(P[live], goal, GOAL_RADIUS)
         steps[live[inside]] = t + 1
         done[live[inside]] = True
         if frames is not None:

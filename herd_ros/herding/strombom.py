@@ -138,13 +138,29 @@ def strombom_targets(P: np.ndarray, dogs: np.ndarray, goal, sheep: SheepParams,
     return np.where(driving[:, None, None], drive, collect), driving
 
 
-def move_herders(dogs: np.ndarray, targets: np.ndarray, P: np.ndarray, sheep: SheepParams,
-                 shepherd: ShepherdParams, rng: np.random.Generator) -> np.ndarray:
-    """Each herder one step of at most ``speed`` toward its target (with noise e_s); it
-    stands still within ``stop_factor`` r_a of a sheep."""
+def herder_velocities(dogs: np.ndarray, targets: np.ndarray, P: np.ndarray,
+                      sheep: SheepParams, shepherd: ShepherdParams, rng: np.random.Generator,
+                      period: float = 1.0) -> np.ndarray:
+    """Each herder's velocity (S, D, 2), m per step: toward its target at ``speed`` (with
+    noise e_s), no farther than the target in ``period`` steps; zero within ``stop_factor``
+    r_a of a sheep (not to split the herd)."""
     step = _unit(_unit(targets - dogs) + shepherd.e * _random_directions(rng, dogs.shape[:2]))
     gap = np.sqrt(((targets - dogs) ** 2).sum(-1, keepdims=True))
     close = (np.sqrt(((dogs[:, :, None, :] - P[:, None, :, :]) ** 2).sum(-1))
              < shepherd.stop_factor * sheep.r_a).any(axis=-1)
-    move = np.minimum(shepherd.speed, gap) * step
-    return dogs + np.where(close[..., None], 0.0, move)
+    v = np.minimum(shepherd.speed, gap / period) * step
+    return np.where(close[..., None], 0.0, v)
+
+
+def move_herders(dogs: np.ndarray, targets: np.ndarray, P: np.ndarray, sheep: SheepParams,
+                 shepherd: ShepherdParams, rng: np.random.Generator) -> np.ndarray:
+    """Each herder one step of at most ``speed`` toward its target (with noise e_s); it
+    stands still within ``stop_factor`` r_a of a sheep (:func:`herder_velocities`)."""
+    return dogs + herder_velocities(dogs, targets, P, sheep, shepherd, rng)
+
+
+def herd_in_goal(P: np.ndarray, goal, radius: float) -> np.ndarray:
+    """Every sheep within ``radius`` of ``goal``, per episode: P (S, N, 2) -> (S,) (NaN
+    positions count as outside)."""
+    d = np.sqrt(((np.asarray(P, dtype=float) - np.asarray(goal, dtype=float)) ** 2).sum(-1))
+    return (d <= radius).all(axis=-1)

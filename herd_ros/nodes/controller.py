@@ -12,10 +12,11 @@ older than ``odom_timeout_s`` (or never came) gets an explicit zero Twist on tha
 Modes are a seam: :data:`POLICIES` maps a mode name to a class with
 ``from_node(node) -> policy`` (declares and reads its own parameters) and
 ``command(state) -> (R, 2)`` world velocities for every observed robot. ``herd_model``
-(:mod:`herd_ros.nodes.herd_model_mode`), ``flocking`` (:mod:`herd_ros.nodes.flocking_mode`)
-and ``imitation`` (:mod:`herd_ros.nodes.imitation_mode`) sit side by side, each the shell
-of its core under :mod:`herd_ros.control`, :mod:`herd_ros.flocking` or
-:mod:`herd_ros.imitation`.
+(:mod:`herd_ros.nodes.herd_model_mode`), ``flocking`` (:mod:`herd_ros.nodes.flocking_mode`),
+``imitation`` (:mod:`herd_ros.nodes.imitation_mode`) and ``herding``
+(:mod:`herd_ros.nodes.herding_mode`) sit side by side, each the shell of its core under
+:mod:`herd_ros.control`, :mod:`herd_ros.flocking`, :mod:`herd_ros.imitation` or
+:mod:`herd_ros.herding`.
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ from herd_ros.errors import HerdInputError
 from herd_ros.model.model_file import check_agent_id
 from herd_ros.nodes.flocking_mode import FlockingPolicy
 from herd_ros.nodes.herd_model_mode import HerdModelPolicy
+from herd_ros.nodes.herding_mode import HerdingPolicy
 from herd_ros.nodes.imitation_mode import ImitationPolicyMode
 from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, ParameterError,
                                        declare_parameters, describe_remaining_parameters,
@@ -42,7 +44,7 @@ from herd_ros.params.controller import COMMON as DEFAULTS
 
 #: Mode name -> policy class (``from_node(node)``, ``command(state)``).
 POLICIES = {'herd_model': HerdModelPolicy, 'flocking': FlockingPolicy,
-            'imitation': ImitationPolicyMode}
+            'imitation': ImitationPolicyMode, 'herding': HerdingPolicy}
 
 
 def yaw_from_quaternion(q) -> float:

@@ -24,7 +24,7 @@ import math
 from dataclasses import dataclass, field
 
 #: the nodes with a table, in the order the documentation lists them
-NODES = ('gps_ingest', 'estimator', 'controller', 'fleet_sim', 'replay', 'record')
+NODES = ('gps_ingest', 'estimator', 'controller', 'fleet_sim', 'herd_sim', 'replay', 'record')
 
 _UNSET = object()
 

@@ -38,13 +38,15 @@ COMMON = {
     'mode': Param(
         'herd_model',
         'control mode',
-        choices=('herd_model', 'flocking', 'imitation'),
+        choices=('herd_model', 'flocking', 'imitation', 'herding'),
         doc=('\n'
              'Control mode: herd_model (follow the learned herd law), flocking '
              '(Olfati-Saber/La-Sheng\n'
              'target tracking: gains in config/flocking.yaml), imitation '
              '(learned swarm policies from\n'
-             'a `herd-ros imitate` policy file passed with --params-file).')),
+             'a `herd-ros imitate` policy file passed with --params-file), herding '
+             '(drive the animals of\n'
+             '/herd/poses into a goal circle: config/herding.yaml).')),
     'rate_hz': Param(
         10.0,
         'command rate (Hz, node clock)',
@@ -358,3 +360,89 @@ FLOCKING_TABLE = NodeTable('controller', FLOCKING_HEADER, {
     'mode': dataclasses.replace(COMMON['mode'], example='flocking',
                                 doc='Select this mode of the controller node.'),
     **FLOCKING}, FLOCKING_TAIL, file='flocking.yaml')
+
+HERDING = {
+    'goal': Param(
+        [20.0, 20.0],
+        'centre [x, y] (m, map) of the goal circle',
+        doc=('\n'
+             'Centre [x, y] (m, map frame) and radius (m) of the goal circle the '
+             'animals are driven\n'
+             'into; the herd is home when every animal of /herd/poses is inside.')),
+    'goal_radius': Param(
+        15.0,
+        'radius (m) of the goal circle',
+        range=(1e-06, 1e6)),
+    'herder': Param(
+        'strombom',
+        "the herders' policy",
+        choices=('strombom',),
+        doc=('\n'
+             "The herders' policy: strombom (Strömbom et al. 2014: collect the "
+             "animal furthest from\n"
+             "the herd's centre while the herd is not gathered, else drive from "
+             'behind the centre;\n'
+             'several robots collect the furthest few and drive from an arc, '
+             'herd_ros/herding/strombom.py).')),
+    'herd_topic': Param(
+        '/herd/poses',
+        'PoseArray of the animals (map frame; NaN = missing)'),
+    'herder_speed': Param(
+        1.5,
+        'speed (m/s) of a herder on its way (max_speed still caps it)',
+        range=(1e-06, 1e3),
+        doc=('\n'
+             'Speed (m/s) of a herder on its way to its target (1.5 × the '
+             "animals' in Strömbom's\n"
+             'setting); the safety layer\'s max_speed still caps it.')),
+    'animal_spacing': Param(
+        2.0,
+        "r_a (m): the animals' personal space",
+        range=(1e-06, 1e6),
+        doc=('\n'
+             "r_a (m), the animals' personal space: the herd counts as gathered "
+             'when every animal is\n'
+             'within r_a N^(2/3) of its centre, the herders drive from r_a √N '
+             'behind it and stand\n'
+             'still within stop_factor × r_a of an animal (not to split the herd).')),
+    'stop_factor': Param(
+        3.0,
+        'a herder stands still within this many r_a of an animal',
+        range=(0.0, 1e3)),
+    'drive_arc_deg': Param(
+        30.0,
+        'several herders drive from an arc of ± this many degrees',
+        range=(0.0, 180.0)),
+    'herder_noise': Param(
+        0.3,
+        "weight of a random direction in a herder's heading (Strömbom: 0.3)",
+        range=(0.0, 100.0)),
+    'herding_seed': Param(
+        0,
+        "seed of the herders' noise",
+        range=(0, 2147483647)),
+    'markers_period_s': Param(
+        0.5,
+        'period (s, node clock) of /herding/markers (goal, herd centre, targets)',
+        range=(1e-03, 3600.0)),
+}
+
+HERDING_HEADER = ('# Herding mode of the controller: the robots drive the animals of '
+                  '/herd/poses into a goal\n'
+                  '# circle (Strömbom et al. 2014, J. R. Soc. Interface 11:20140719). '
+                  'RViz markers of the goal,\n'
+                  "# the herd's centre and each robot's target on /herding/markers. "
+                  'The safety layer of\n'
+                  '# config/controller.yaml applies as in every mode. Use:\n'
+                  '#   ros2 launch herd_ros herding.launch.py     (animals, robots and '
+                  'this controller)\n'
+                  '#   ros2 run herd_ros controller --ros-args --params-file '
+                  'config/herding.yaml\n')
+
+#: config/herding.yaml: the controller in mode herding
+HERDING_TABLE = NodeTable('controller', HERDING_HEADER, {
+    'mode': dataclasses.replace(COMMON['mode'], example='herding',
+                                doc='Select this mode of the controller node.'),
+    'max_speed': dataclasses.replace(COMMON['max_speed'], example=1.5,
+                                     doc='Speed limit (m/s): at least herder_speed.'),
+    **HERDING}, file='herding.yaml')

@@ -1,0 +1,111 @@
+"""Controller mode ``herding``: the robots drive the animals of ``/herd/poses`` into a goal
+circle (issue 27).
+
+Each tick the policy takes the latest animal positions (NaN ones ignored) and the robots'
+odometry, and Strömbom's shepherd (:func:`herd_ros.herding.strombom.strombom_targets`:
+collect the furthest animal while the herd is not gathered, drive from behind its centre
+otherwise; several robots collect the furthest few and drive from an arc) gives each robot
+a target; :func:`~herd_ros.herding.strombom.herder_velocities` turns it into a velocity of
+``herder_speed`` (with Strömbom's heading noise), zero within ``stop_factor`` r_a of an
+animal. Once every animal is inside the goal the robots hold still. RViz markers on
+``/herding/markers`` (visualization_msgs/MarkerArray, map frame): the goal circle, the
+herd's centre and each robot's target.
+"""
+from __future__ import annotations
+
+import numpy as np
+from geometry_msgs.msg import PoseArray
+from visualization_msgs.msg import Marker, MarkerArray
+
+from herd_ros.herding.strombom import (SheepParams, ShepherdParams, herd_in_goal,
+                                       herder_velocities, strombom_targets)
+from herd_ros.nodes.ros_common import ParameterError, declare_parameters, stamp_to_seconds
+from herd_ros.params.controller import HERDING as HERDING_DEFAULTS
+
+
+class HerdingPolicy:
+    """Mode ``herding`` (see the module docstring); ``command(state)`` -> (R, 2) m/s."""
+
+    def __init__(self, node, p: dict):
+        self.node = node
+        goal = np.asarray(list(p['goal']), dtype=float)
+        if goal.shape != (2,) or not np.isfinite(goal).all():
+            raise ParameterError(f'goal must be [x, y] (m), got {list(p["goal"])}')
+        self.goal, self.radius = goal, float(p['goal_radius'])
+        self.sheep = SheepParams(n_neighbours=1, r_a=float(p['animal_spacing']))
+        self.shepherd = ShepherdParams(speed=float(p['herder_speed']),
+                                       e=float(p['herder_noise']),
+                                       stop_factor=float(p['stop_factor']),
+                                       arc_deg=float(p['drive_arc_deg']))
+        self.rng = np.random.default_rng([int(p['herding_seed']), 27])
+        self.topic = str(p['herd_topic'])
+        self.animals = None
+        self.animals_time = np.nan
+        self.updates = 0
+        self.phase = 'waiting'
+        self.targets = np.zeros((0, 2))
+        self.markers_period = float(p['markers_period_s'])
+        self._last_markers = -np.inf
+        node.create_subscription(PoseArray, self.topic, self.on_poses, 10)
+        self.markers_pub = node.create_publisher(MarkerArray, '/herding/markers', 10)
+        self.status = f'waiting for the animals on {self.topic}'
+
+    @classmethod
+    def from_node(cls, node) -> 'HerdingPolicy':
+        return cls(node, declare_parameters(node, HERDING_DEFAULTS))
+
+    def on_poses(self, msg: PoseArray):
+        xy = np.array([(q.position.x, q.position.y) for q in msg.poses], dtype=float)
+        xy = xy.reshape(-1, 2)
+        self.animals = xy[np.isfinite(xy).all(axis=1)]
+        self.animals_time = stamp_to_seconds(msg.header.stamp)
+        self.updates += 1
+
+    def command(self, state) -> np.ndarray:
+        out = np.full_like(state.positions, np.nan)
+        present = state.active & np.isfinite(state.positions).all(axis=1)
+        P = self.animals
+        if P is None or not len(P) or not present.any():
+            out[present] = 0.0
+            return out
+        dogs = state.positions[present]
+        if herd_in_goal(P[None], self.goal, self.radius)[0]:
+            self.phase = 'home'
+            out[present] = 0.0
+            self.targets = dogs.copy()
+        else:
+            targets, driving = strombom_targets(P[None], dogs[None], self.goal, self.sheep,
+                                                self.shepherd)
+            self.phase = 'driving' if driving[0] else 'collecting'
+            self.targets = targets[0]
+            out[present] = herder_velocities(dogs[None], targets, P[None], self.sheep,
+                                             self.shepherd, self.rng, state.period)[0]
+        self.status = {'home': 'the herd is inside the goal: holding still',
+                       'driving': 'driving the herd to the goal',
+                       'collecting': 'collecting a straggler'}[self.phase] + \
+            f' ({len(P)} animals, goal {self.goal.tolist()} r {self.radius:g} m)'
+        if state.time - self._last_markers >= self.markers_period - 1e-9:
+            self._last_markers = state.time
+            self.publish_markers(P)
+        return out
+
+    def publish_markers(self, P: np.ndarray):
+        stamp = self.node.get_clock().now().to_msg()
+
+        def marker(mid, kind, xy, scale, rgba, z=0.0):
+            m = Marker()
+            m.header.frame_id = 'map'
+            m.header.stamp = stamp
+            m.ns, m.id, m.type, m.action = 'herding', mid, kind, Marker.ADD
+            m.pose.position.x, m.pose.position.y, m.pose.position.z = (
+                float(xy[0]), float(xy[1]), z)
+            m.pose.orientation.w = 1.0
+            m.scale.x, m.scale.y, m.scale.z = scale
+            m.color.r, m.color.g, m.color.b, m.color.a = rgba
+            return m
+        d = 2 * self.radius
+        ms = [marker(0, Marker.CYLINDER, self.goal, (d, d, 0.1), (0.2, 0.8, 0.2, 0.3)),
+              marker(1, Marker.SPHERE, P.mean(axis=0), (2.0, 2.0, 2.0), (0.9, 0.6, 0.1, 0.9))]
+        for k, t in enumerate(self.targets):
+            ms.append(marker(2 + k, Marker.SPHERE, t, (1.5, 1.5, 1.5), (0.2, 0.4, 1.0, 0.9)))
+        self.markers_pub.publish(MarkerArray(markers=ms))
