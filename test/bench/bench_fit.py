@@ -6,8 +6,11 @@ known-truth herd (herd_ros.synthesis.known_truth). Times, beside each other:
 * the single fit of the paper's full model on an 8x8 grid (regressors, structured QR,
   sandwich errors);
 * the selected fit as `herd-ros fit` does it by default: blocked cross-validation of every
-  candidate (model_selection.select_model), then the final fit of the chosen structure.
-Not the simulation. Prints medians over repeats.
+  candidate (model_selection.select_model), then the final fit of the chosen structure;
+* the whole default fit, ``HerdDynamics().fit`` (what `herd-ros fit` runs: the selected fit
+  plus the long-run terms: the field and noise checks on a validation tail and the
+  free-run noise calibration), once per case.
+Not the simulation of the data. Prints medians over repeats.
 
     .venv/bin/python test/bench/bench_fit.py
 """
@@ -15,6 +18,7 @@ import statistics
 import time
 
 from herd_ros.estimation.herd_fit import fit_herd, fit_structure
+from herd_ros.herd_dynamics import HerdDynamics
 from herd_ros.estimation.model_selection import select_model
 from herd_ros.simulation.herd_simulator import simulate
 from herd_ros.synthesis.known_truth import initial_positions, make_truth_model
@@ -42,10 +46,16 @@ def main():
             t0 = time.perf_counter()
             sel = _selected_fit(run)
             selected.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        whole = HerdDynamics().fit(run)
+        whole_s = time.perf_counter() - t0
         p = len(fit.model.laws[truth.agents[0]].theta)
         print(f'{n:>6} {steps:>8} {p:>12} {statistics.median(times):>15.3f} '
               f'{min(times):>8.3f} {statistics.median(selected):>24.3f} {len(sel.table):>10} '
-              f'{repeats:>7}   chosen: {sel.chosen.label()}', flush=True)
+              f'{repeats:>7}   chosen: {sel.chosen.label()}; whole default fit {whole_s:.1f} s '
+              f'(field {whole.choices.get("field")}, noise scale '
+              f'{whole.choices.get("noise_scale", {}).get("iterations", "-")} iterations)',
+              flush=True)
     print('reproduce: make bench  (or .venv/bin/python test/bench/bench_fit.py)')
 
 
