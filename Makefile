@@ -14,7 +14,7 @@ ROS_WHEELS := "ros-jazzy-rclpy[fastrtps]" ros-jazzy-sensor-msgs ros-jazzy-nav-ms
               ros-jazzy-visualization-msgs ros-jazzy-diagnostic-msgs \
               ros-jazzy-rosgraph-msgs ros-jazzy-builtin-interfaces ros-jazzy-ament-index-python
 PY_DEPS    := setuptools wheel numpy scipy pandas numba filterpy rosbags PyYAML matplotlib tqdm pillow
-DEV_DEPS   := pytest pytest-timeout pymap3d mcap mcap-ros2-support ruff \
+DEV_DEPS   := pytest pytest-timeout pymap3d mcap mcap-ros2-support ruff sphinx myst-parser \
               colcon-core colcon-ros colcon-python-setup-py colcon-bash
 BENCH_DEPS := padasip
 
@@ -30,13 +30,14 @@ export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)$(if $(AMENT_PREFIX_PATH),:$(AMENT_
 export MPLBACKEND := Agg
 export PYTHONUNBUFFERED := 1
 
-.PHONY: help setup demo test test-fast lint bench clean
+.PHONY: help setup demo test test-fast lint docs bench clean
 
 help:
 	@echo "make demo   set up .venv and run the demo on the shipped real herd (19 baboons; writes demo_out/)"
 	@echo "make test   set up .venv and run the test suite"
 	@echo "make test-fast  the tests that need no ROS node, package build or long statistics (the inner loop)"
-	@echo "make bench  set up .venv and run the benchmarks (medians, see README Performance)"
+	@echo "make docs   build the documentation (doc/, Sphinx) into doc/_build/html"
+	@echo "make bench  set up .venv and run the benchmarks (medians, see doc/results.md)"
 	@echo "make setup  only create/update .venv (idempotent)"
 
 setup: $(STAMP)
@@ -58,7 +59,7 @@ demo: install-self
 
 # pycodestyle errors and warnings and pyflakes, lines up to 100 (issue 28: the pydocstyle
 # rules are not on yet)
-LINT := $(PY) -m ruff check --quiet --select E,F,W --line-length 100 herd_ros test launch setup.py
+LINT := $(PY) -m ruff check --quiet --select E,F,W --line-length 100 herd_ros test launch doc setup.py
 
 lint: install-self
 	$(LINT)
@@ -66,6 +67,10 @@ lint: install-self
 test: install-self
 	$(LINT)
 	$(PY) -m pytest -q -ra
+
+docs: install-self
+	$(PY) -m sphinx -W --keep-going -q -b html doc doc/_build/html
+	@echo "open doc/_build/html/index.html"
 
 test-fast: install-self
 	$(PY) -m pytest -q -ra -m "not ros and not slow and not build"
@@ -75,4 +80,4 @@ bench: install-self
 	$(PY) test/bench/run_all.py
 
 clean:
-	rm -rf build install log demo_out .pytest_cache
+	rm -rf build install log demo_out .pytest_cache doc/_build doc/_generated

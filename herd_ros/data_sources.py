@@ -55,7 +55,7 @@ def load_runs(path, dt: float | None = None, smoother: str = 'none',
     one motion model for every collar unless ``motion_model`` says otherwise: the herd law
     is learned at the clock's step, and on the shipped real herds it predicts the fixed
     model's track better than the per-collar fitted one, which follows the fixes' small
-    jitter (README, "Tracking")."""
+    jitter (doc/gps_ingest.md, "Tracking")."""
     filter_params.setdefault('motion_model', 'fixed')
     if filter_params['motion_model'] == 'auto':
         filter_params['motion_model'] = 'fixed'

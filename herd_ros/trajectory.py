@@ -1,4 +1,4 @@
-"""Herd trajectories on one uniform clock, and the trajectory CSV format of DESIGN.md.
+"""Herd trajectories on one uniform clock, and the trajectory CSV format of doc/formats.md.
 
 A :class:`HerdTrajectory` is one run: ``positions[t, i] = (x, y)`` of agent ``agents[i]`` at
 ``times[t]``, metres east/north in the local ENU frame. Independent recordings are separate

@@ -5,7 +5,7 @@ class) is seen through collars with every real-collar fault of
 :meth:`CollarErrorModel.real_collar`: fixes every 30-250 s, silences of 6-30 h, late starts,
 early ends, bursts of 3-10 fixes 0.3-3 km off, duplicated stamps. The expectations are
 independent of the filter: the true track, the generator's fault flags, and the rules of
-DESIGN.md ("Time": a stale collar is NaN, never an extrapolation).
+doc/formats.md ("Time": a stale collar is NaN, never an extrapolation).
 """
 import numpy as np
 import pandas as pd

@@ -3,7 +3,7 @@
 DATA is a GPS CSV, Movebank CSV, GPX file, rosbag2 directory or ``.mcap`` file. The path is
 :func:`herd_ros.ingest.pipeline.trajectory_from_fixes`: exact WGS84 -> ENU about the datum,
 one Kalman filter per collar with gating, the herd clock, an optional smoother. Prints the
-datum and the per-collar counters; writes the trajectory CSV of DESIGN.md.
+datum and the per-collar counters; writes the trajectory CSV of doc/formats.md.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""`herd-ros`: the offline front door (DESIGN.md, "Command line").
+"""`herd-ros`: the offline front door (doc/formats.md, and the command-line page).
 
 Every verb lives in its own module ``herd_ros.cli.<verb>`` exposing
 

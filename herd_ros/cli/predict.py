@@ -1,7 +1,7 @@
 """`herd-ros predict`: k-step-ahead positions of every agent, with their covariance.
 
-PRED.csv (DESIGN.md, "Command line"): ``time,agent,x,y,cov_xx,cov_xy,cov_yy[,run]`` — the
-position predicted for ``time`` from the data up to ``time − K·dt`` and the covariance of
+PRED.csv (doc/formats.md): ``time,agent,x,y,cov_xx,cov_xy,cov_yy[,run]`` — the position
+predicted for ``time`` from the data up to ``time − K·dt`` and the covariance of
 that prediction (m²): the model's k-step covariance
 (:func:`~herd_ros.simulation.prediction.prediction_covariance`) times the agent's running noise
 level in the data up to the origin (:func:`~herd_ros.simulation.prediction.noise_level`).

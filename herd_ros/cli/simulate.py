@@ -12,7 +12,7 @@ from herd_ros.simulation.statistics import herd_statistics
 from herd_ros.trajectory import write_trajectory_csv
 
 HELP = ('simulate the learned laws of a model file (noise from each agent\'s Q_i, or its '
-        'noise regimes when the file has them)')
+        'noise regimes when the file has them, times its noise_scale)')
 
 
 def add_arguments(p):

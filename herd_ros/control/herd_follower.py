@@ -263,7 +263,7 @@ def model_from_parameter_matrix(theta: np.ndarray, agents: list[str], dt: float,
                                 grid, noise_cov: np.ndarray | None = None) -> HerdModel:
     """A pairwise :class:`HerdModel` from the estimator's parameter matrix (N, P).
 
-    Row i is θ_i in the order of DESIGN.md, [a_i, θ1_i·, θ2_i·, θu_i·, θv_i·], the
+    Row i is θ_i in the order of doc/formats.md, [a_i, θ1_i·, θ2_i·, θu_i·, θv_i·], the
     neighbours being the other agents in ``agents`` order, and the field on **every** centre
     of ``grid`` (a :class:`~herd_ros.model.rbf_field.FieldGrid`, σ = 2/3 spacing, no pruning),
     so P = 1 + 2(N − 1) + 2K with K = nx·ny. ``noise_cov`` (N, 2, 2) is Q_i from the

@@ -53,7 +53,7 @@ DAMPING_MAX = 0.999
 
 @dataclass
 class LeastSquaresFit:
-    """The result for one agent, θ in DESIGN.md order [a, θ1.., θ2.., θu.., θv..]."""
+    """The result for one agent, θ in doc/formats.md order [a, θ1.., θ2.., θu.., θv..]."""
 
     theta: np.ndarray
     theta_se: np.ndarray

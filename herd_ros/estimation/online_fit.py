@@ -142,7 +142,7 @@ class SharedRegressor:
         return shared_rows(p_prev, p_cur, dt, self.profile, self.basis)
 
     def missing_neighbors(self, missing: np.ndarray, last_seen: np.ndarray, p_prev):
-        """Missing neighbours drop out of the sum (DESIGN.md, ``predict``): no row is
+        """Missing neighbours drop out of the sum (doc/formats.md, ``predict``): no row is
         excluded."""
         return np.zeros(len(self.agents), dtype=bool)
 

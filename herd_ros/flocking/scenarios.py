@@ -1,6 +1,6 @@
 """The report's flocking experiments and the simulation loop that runs them.
 
-Setting (the report, DESIGN.md): N agents (50) placed uniformly at random in [0, 75]² m,
+Setting (the report, doc/formats.md): N agents (50) placed uniformly at random in [0, 75]² m,
 at rest; the target (γ-agent) starts at (20, 50) m and moves at 10 m/s along +x; dt 0.02 s.
 
 Scenarios (``SCENARIOS``):

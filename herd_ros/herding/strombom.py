@@ -8,8 +8,8 @@
 * Ĥ_i its previous heading (inertia);
 * C_i = LCM_i − P_i, the local centre of mass of its ``n`` nearest neighbours (cohesion:
   n ≈ half the herd is the paper's cohesive flock, n of a few is short-range);
-* R^a_i = Σ_{j: |P_i − P_j| < r_a} (P_i − P_j)/|P_i − P_j|, repulsion from crowding;
-* R^s_i = Σ_{dogs within r_s} (P_i − S)/|P_i − S|, flight from the dog(s);
+* R^a_i = Σ_{j: ‖P_i − P_j‖ < r_a} (P_i − P_j)/‖P_i − P_j‖, repulsion from crowding;
+* R^s_i = Σ_{dogs within r_s} (P_i − S)/‖P_i − S‖, flight from the dog(s);
 * ε_i a random direction, weight e (the noise the benchmark varies).
 
 A sheep with no dog within r_s grazes: it stays put, except with probability ``graze``
@@ -18,9 +18,9 @@ per step when it takes the step above without the dog's term.
 **Shepherd** (the paper's heuristic), speed δ_s = 1.5 δ: with Γ the herd's centre of mass,
 D the goal and f(N) = r_a N^(2/3),
 
-* if every sheep is within f(N) of Γ, **drive**: go to P_d = Γ + r_a √N (Γ − D)/|Γ − D|,
+* if every sheep is within f(N) of Γ, **drive**: go to P_d = Γ + r_a √N (Γ − D)/‖Γ − D‖,
   behind the herd as seen from the goal;
-* else **collect**: go to P_c = A + r_a (A − Γ)/|A − Γ| behind the sheep A furthest from Γ;
+* else **collect**: go to P_c = A + r_a (A − Γ)/‖A − Γ‖ behind the sheep A furthest from Γ;
 * stand still when within 3 r_a of any sheep (not to split the herd); a small noise e_s.
 
 With several herders (an extension: the paper has one) herder k collects the k-th furthest

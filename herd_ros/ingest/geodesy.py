@@ -1,7 +1,7 @@
 """Exact WGS84 geodesy: geodetic (lat, lon, alt) <-> ECEF <-> local ENU about a datum.
 
 Everything is vectorized with numpy (any broadcastable shapes), angles in degrees, lengths in
-metres. No flat-earth approximation anywhere (DESIGN.md, "Frames and units").
+metres. No flat-earth approximation anywhere (doc/formats.md, "Frames and units").
 
 * geodetic -> ECEF: the closed form (e.g. Hofmann-Wellenhof, Lichtenegger & Wasle, *GNSS*,
   2008, eq. 10.4)::

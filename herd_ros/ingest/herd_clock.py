@@ -1,4 +1,4 @@
-"""One uniform clock of step ``dt`` for the whole herd, in data time (DESIGN.md, "Time").
+"""One uniform clock of step ``dt`` for the whole herd, in data time (doc/formats.md, "Time").
 
 Ticks are the integer multiples of ``dt`` in epoch seconds (``t_k = k·dt``), so the clock does
 not depend on which collar spoke first, and a bag replayed at any rate gives the same ticks.
@@ -9,7 +9,7 @@ with stamp ≤ t (its :class:`StateTimeline` entry), predicted to t with the fil
 constant-velocity model (:func:`herd_ros.ingest.collar_filter.predict_state`). The agent is
 *stale* at t when that fix is more than ``stale_after`` seconds older than t (or there is
 none); a stale agent's position and velocity are **NaN** (missing), never an extrapolation
-(DESIGN.md, "Time"): real collars go silent for hours or days, and a prediction carried
+(doc/formats.md, "Time"): real collars go silent for hours or days, and a prediction carried
 across such a gap drifts kilometres. Its covariance is kept (it says how uncertain the
 prediction would be).
 

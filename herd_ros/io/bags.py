@@ -37,7 +37,7 @@ def typestore():
 
 
 def fix_topic(agent: str) -> str:
-    """``/herd/<agent>/fix`` (DESIGN.md, topics)."""
+    """``/herd/<agent>/fix`` (doc/formats.md, topics)."""
     return f'/herd/{agent}/fix'
 
 

@@ -14,7 +14,7 @@ The fixes table has one row per fix and the columns :data:`FIX_COLUMNS`:
 
 Formats:
 
-* **GPS CSV** (DESIGN.md): header ``time,agent,lat,lon`` with optional ``alt`` (and the other
+* **GPS CSV** (doc/formats.md): header ``time,agent,lat,lon`` with optional ``alt`` (and the other
   columns above); ``time`` in epoch seconds or ISO-8601 (naive times are taken as UTC).
 * **Movebank CSV**: ``timestamp`` (UTC, ``YYYY-MM-DD HH:MM:SS[.fff]``), ``location-long``,
   ``location-lat``, ``individual-local-identifier``; ``height-above-ellipsoid`` if present.

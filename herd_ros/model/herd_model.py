@@ -65,7 +65,8 @@ class AgentLaw:
 
     @property
     def theta(self) -> np.ndarray:
-        """θ_i in the order of DESIGN.md: [damping, theta1.., theta2.., field_u.., field_v..]."""
+        """θ_i in the order of doc/formats.md: [damping, theta1.., theta2.., field_u..,
+        field_v..]."""
         return np.concatenate([[self.damping], self.theta1, self.theta2,
                                self.field_u, self.field_v])
 

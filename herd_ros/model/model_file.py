@@ -1,4 +1,4 @@
-"""The model file of DESIGN.md: a ROS 2 parameters YAML (usable with ``--params-file``).
+"""The model file of doc/formats.md: a ROS 2 parameters YAML (usable with ``--params-file``).
 
 ::
 
@@ -40,7 +40,7 @@ AGENT_KEYS = ('damping', 'neighbors', 'theta1', 'theta2', 'rbf_centers_x', 'rbf_
 
 
 class _FlowListDumper(getattr(yaml, 'CSafeDumper', yaml.SafeDumper)):
-    """Block mappings, flow (inline) sequences: the layout of DESIGN.md (libyaml's emitter
+    """Block mappings, flow (inline) sequences: the layout of doc/formats.md (libyaml's emitter
     where PyYAML has it: a fine field's file is 10× faster to write)."""
 
 
@@ -285,7 +285,7 @@ def write_atomic(path, text: str) -> Path:
 
 
 def save_model(model: HerdModel, path, selection: dict | None = None) -> Path:
-    """Write the model file of DESIGN.md (with ``selection``: the ``model.selection``
+    """Write the model file of doc/formats.md (with ``selection``: the ``model.selection``
     mapping of a selected fit, see :func:`selection_entry`); :func:`herd_ros.model.kinds
     .save`, which writes every kind."""
     from herd_ros.model.kinds import save

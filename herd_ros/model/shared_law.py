@@ -35,7 +35,7 @@ pairwise law gives every pair its own parameters, which hours of data do not ide
 Neighbours come from :class:`scipy.spatial.cKDTree` (``query_pairs``), so one snapshot of
 N animals costs O(N log N + pairs) rather than O(N²).
 
-Model file (``kind: schwager2007_shared``; the ``model:`` mapping of DESIGN.md)::
+Model file (``kind: schwager2007_shared``; the ``model:`` mapping of doc/formats.md)::
 
     model:
       kind: schwager2007_shared

@@ -77,7 +77,7 @@ class Controller(Node):
         self.timer = self.create_timer(self.period, self.tick)
         describe_remaining_parameters(self, {
             'model.': 'the model (model file of herd-ros fit or the estimator, or an '
-                      'imitation policy file; keys in the README)',
+                      'imitation policy file; keys in doc/formats.md)',
             'flocking.': 'flocking gain or setting (config/flocking.yaml)',
             '': 'not a controller parameter (ignored)'})
         LiveParameters(self, self._validate_live, self._apply_live)

@@ -2,7 +2,7 @@
 
 Subscribes ``/herd/poses`` (PoseArray, one snapshot per herd-clock tick in ``agents`` order;
 a NaN pose = missing, its update skipped). Publishes ``/herd/model/params``
-(Float64MultiArray ``agent`` × ``param``, rows θ_i as in DESIGN.md: [damping, theta1..,
+(Float64MultiArray ``agent`` × ``param``, rows θ_i as in doc/formats.md: [damping, theta1..,
 theta2.., field_u.., field_v..], shared law [damping, profile.., field_u.., field_v..]) and,
 latched, ``/herd/model/structure`` (how to read them: :mod:`herd_ros.model.model_structure`),
 ``/herd/model/noise`` (Q_i), ``/herd/model/prediction`` (one step ahead, eq. 8, stamped

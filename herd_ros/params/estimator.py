@@ -133,7 +133,7 @@ PARAMS = {
         live=True,
         doc=('Model file written by the ~/save_model service and when the node '
              'is stopped (ROS\n'
-             'parameters YAML of DESIGN.md). Relative paths here and in '
+             'parameters YAML of doc/formats.md). Relative paths here and in '
              'checkpoint_path are under\n'
              'the data directory $ROS_HOME/herd_ros (~/.ros/herd_ros), never '
              'the working directory.')),

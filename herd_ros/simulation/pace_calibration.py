@@ -26,7 +26,7 @@ Newton's step); a pull that bounds the range makes the pace grow more slowly tha
     γ_i = Δ log pace_sim,i / Δ log s_i                                  (C2)
 
 Two guards keep the calibration from chasing chance. The data are one realisation: a miss
-is corrected only when |log(pace_data / pace_sim)| exceeds twice the runs' own standard
+is corrected only when abs(log(pace_data / pace_sim)) exceeds twice the runs' own standard
 deviation of log pace over the seeds (× √(1 + 1/seeds), the data's draw counted), and at
 least 10 % (C3). And an animal whose pace barely answers its noise (γ_i < 0.3 at the first
 step: a law whose field or neighbours set the pace) keeps its noise: the noise cannot set

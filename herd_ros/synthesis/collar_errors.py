@@ -79,7 +79,7 @@ from herd_ros.trajectory import HerdTrajectory
 STATUS_FIX, STATUS_NO_FIX = 0, -1
 #: NavSatFix.position_covariance_type values used here.
 COVARIANCE_TYPE_UNKNOWN, COVARIANCE_TYPE_APPROXIMATED = 0, 1
-#: Datum used when the trajectory carries none (DESIGN.md's example).
+#: Datum used when the trajectory carries none (the example of doc/formats.md).
 DEFAULT_DATUM = (27.0153, -108.7937, 0.0)
 
 GPS_CSV_COLUMNS = ('time', 'agent', 'lat', 'lon', 'alt')
@@ -364,7 +364,7 @@ def _gauss_markov(rng, shape, std, tau, dt):
 
 
 def write_gps_csv(fixes: pd.DataFrame, path, *, keep_no_fix: bool = False) -> Path:
-    """Write fixes as the GPS CSV of DESIGN.md: header ``time,agent,lat,lon,alt``.
+    """Write fixes as the GPS CSV of doc/formats.md: header ``time,agent,lat,lon,alt``.
 
     ``time`` with millisecond resolution, lat/lon with 1e-9° (0.1 mm), alt with 1 mm; a NaN
     altitude is an empty field. By default NO_FIX rows (``status == -1``) are dropped, since

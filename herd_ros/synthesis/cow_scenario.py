@@ -48,7 +48,7 @@ from matplotlib.path import Path
 from herd_ros.errors import HerdInputError
 from herd_ros.trajectory import HerdTrajectory
 
-#: Datum (lat °, lon °, alt m) of the default paddock: DESIGN.md's example.
+#: Datum (lat °, lon °, alt m) of the default paddock: the example of doc/formats.md.
 DEFAULT_DATUM = (27.0153, -108.7937, 0.0)
 
 #: Behaviour state codes stored in ``HerdTrajectory.meta['state']``.

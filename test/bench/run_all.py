@@ -1,7 +1,7 @@
 """Run every benchmark script ``test/bench/bench_*.py`` (or those named on the command line).
 
 Each script is run in its own process with loopback-only DDS and prints its own table of
-medians; see the README's Performance section. Usage::
+medians; see doc/results.md. Usage::
 
     make bench                       # all of them
     .venv/bin/python test/bench/run_all.py bench_fit.py
