@@ -14,7 +14,7 @@ ROS_WHEELS := "ros-jazzy-rclpy[fastrtps]" ros-jazzy-sensor-msgs ros-jazzy-nav-ms
               ros-jazzy-visualization-msgs ros-jazzy-diagnostic-msgs \
               ros-jazzy-rosgraph-msgs ros-jazzy-builtin-interfaces ros-jazzy-ament-index-python
 PY_DEPS    := setuptools wheel numpy scipy pandas numba filterpy rosbags PyYAML matplotlib tqdm pillow
-DEV_DEPS   := pytest pytest-timeout pymap3d mcap mcap-ros2-support ruff sphinx myst-parser \
+DEV_DEPS   := pytest pytest-timeout pytest-xdist pymap3d mcap mcap-ros2-support ruff sphinx myst-parser \
               colcon-core colcon-ros colcon-python-setup-py colcon-bash
 BENCH_DEPS := padasip
 
@@ -64,16 +64,19 @@ LINT := $(PY) -m ruff check --quiet --select E,F,W --line-length 100 herd_ros te
 lint: install-self
 	$(LINT)
 
+# two workers (this machine has two cores; each worker keeps its own band of DDS domains,
+# test/conftest.py); --dist loadfile keeps a file's tests, and its module fixtures (the
+# colcon build, the demo runs), on one worker
 test: install-self
 	$(LINT)
-	$(PY) -m pytest -q -ra
+	$(PY) -m pytest -q -ra -n 2 --dist loadfile
 
 docs: install-self
 	$(PY) -m sphinx -W --keep-going -q -b html doc doc/_build/html
 	@echo "open doc/_build/html/index.html"
 
 test-fast: install-self
-	$(PY) -m pytest -q -ra -m "not ros and not slow and not build"
+	$(PY) -m pytest -q -ra -n 2 --dist loadfile -m "not ros and not slow and not build"
 
 bench: install-self
 	$(PIP) install $(BENCH_DEPS)

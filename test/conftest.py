@@ -16,6 +16,14 @@ import pytest
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ['ROS_STATIC_PEERS'] = ''
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
+# pytest-xdist (make test runs two workers): each worker its own band of domain ids, so the
+# in-process nodes and subprocess graphs of one worker never meet another's
+_WORKER = int(os.environ.get('PYTEST_XDIST_WORKER', 'gw0')[2:] or 0)
+_WORKERS = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
+_BAND = 100 // max(_WORKERS, 1)
+if _WORKERS > 1:
+    os.environ['ROS_DOMAIN_ID'] = str(1 + _WORKER * _BAND
+                                      + (int(os.environ['ROS_DOMAIN_ID']) % _BAND))
 os.environ.setdefault('MPLBACKEND', 'Agg')
 # Nodes write their files (estimator checkpoint and model) under $ROS_HOME/herd_ros: the
 # tests' go to a directory of their own, never the user's ~/.ros
@@ -28,9 +36,15 @@ if _prefix not in os.environ.get('AMENT_PREFIX_PATH', '').split(':'):
     os.environ['AMENT_PREFIX_PATH'] = ':'.join(
         p for p in [_prefix, os.environ.get('AMENT_PREFIX_PATH', '')] if p)
 
-# Domain ids for subprocess graphs: distinct from the run's own id, cycling in 1..100.
-_base = int(os.environ['ROS_DOMAIN_ID'])
-_domains = (1 + (_base + k) % 100 for k in itertools.count(1))
+# Domain ids for subprocess graphs: distinct from the run's own id, cycling in the
+# worker's band of 1..100.
+_base = int(os.environ['ROS_DOMAIN_ID']) - 1 - _WORKER * _BAND
+_domains = (1 + _WORKER * _BAND + (_base + k) % _BAND for k in itertools.count(1))
+
+
+def fresh_domain() -> str:
+    """A domain id of this worker's band not used by any earlier test of the run."""
+    return str(next(_domains))
 
 
 @pytest.fixture
@@ -39,7 +53,7 @@ def ros_env():
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env['ROS_STATIC_PEERS'] = ''
-    env['ROS_DOMAIN_ID'] = str(next(_domains))
+    env['ROS_DOMAIN_ID'] = fresh_domain()
     env['PYTHONUNBUFFERED'] = '1'
     return env
 

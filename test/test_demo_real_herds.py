@@ -72,10 +72,12 @@ def distance_to_edges(points, polygon):
 @pytest.fixture(scope='module', params=BAGS)
 def demo_run(request, tmp_path_factory):
     import os
+
+    from conftest import fresh_domain
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env['ROS_STATIC_PEERS'] = ''
-    env['ROS_DOMAIN_ID'] = str(90 + BAGS.index(request.param))
+    env['ROS_DOMAIN_ID'] = fresh_domain()
     out = tmp_path_factory.mktemp(request.param)
     exe = str(REPO / '.venv' / 'bin' / 'herd-ros')
     if not os.path.exists(exe):
