@@ -1,0 +1,1 @@
+"""herd_ros: learn how a herd moves from GPS collars and drive robot fleets with it."""

@@ -20,6 +20,7 @@ from herd_ros.trajectory import HerdTrajectory, clock_is_uniform, read_trajector
 
 
 def is_trajectory_csv(path: Path) -> bool:
+    """Whether ``path`` is a trajectory CSV (header ``time,agent,x,y``), not GPS data."""
     if path.suffix.lower() != '.csv' or not path.is_file():
         return False
     with open(path, 'rb') as fh:

@@ -51,6 +51,8 @@ class _NoAliasDumper(yaml.SafeDumper):
 
 
 def dump_yaml(data) -> str:
+    """``data`` as YAML in the layout the model and herd files use (block mappings, inline
+    lists)."""
     return yaml.dump(data, Dumper=_NoAliasDumper, sort_keys=False, default_flow_style=None)
 
 
@@ -90,6 +92,8 @@ def herd_file_dict(setup: HerdSetup, bag=None, relative_to=None) -> dict:
 
 
 def write_herd_file(path, setup: HerdSetup, bag=None, header: str = '') -> Path:
+    """Write ``setup`` (and the ``bag`` it came from) as a herd file at ``path``, ``header`` as
+    comments on top; returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     body = dump_yaml(herd_file_dict(setup, bag, relative_to=path.parent))

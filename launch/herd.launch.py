@@ -49,6 +49,7 @@ def _graph(context):
 
 
 def generate_launch_description():
+    """The launch description ``ros2 launch`` runs (module docstring)."""
     return LaunchDescription([
         DeclareLaunchArgument('herd', default_value='',
                               description='herd file (herd-ros herd-file BAG writes one); '

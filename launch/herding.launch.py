@@ -38,6 +38,7 @@ def _graph(context):
 
 
 def generate_launch_description():
+    """The launch description ``ros2 launch`` runs (module docstring)."""
     return LaunchDescription([
         DeclareLaunchArgument('animals', default_value='14', description='number of sheep'),
         DeclareLaunchArgument('herders', default_value='1', description='number of robots'),

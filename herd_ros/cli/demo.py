@@ -43,6 +43,7 @@ def shipped_bag(name: str = BAG_NAME) -> Path:
 
 
 def add_arguments(p):
+    """The verb's options (``herd-ros VERB --help``)."""
     p.add_argument('--out', default='demo_out', help='report directory')
     p.add_argument('--bag', help=f'bag to use (default: the herd file\'s bag, else the shipped '
                                  f'bags/{BAG_NAME}, 19 wild baboons)')
@@ -71,6 +72,7 @@ def add_arguments(p):
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     if args.herding:
         return run_herding(args)
     if args.offline:
@@ -119,6 +121,7 @@ def run(args) -> int:
 
 
 def run_herding(args) -> int:
+    """``herd-ros demo --herding``: the herding graph live (:mod:`herd_ros.cli.herding_demo`)."""
     from herd_ros.cli.herding_demo import run_herding_demo
     if args.offline or args.bag or args.herd:
         raise HerdInputError('--herding runs simulated animals: no --offline, --bag or --herd')
@@ -138,6 +141,8 @@ def run_herding(args) -> int:
 
 
 def run_offline(args) -> int:
+    """``herd-ros demo --offline``: ingest, batch fit, validation, simulation and the paper's
+    figures."""
     from herd_ros.cli.main import main as cli
     t0 = time.perf_counter()
     out = Path(args.out)

@@ -22,6 +22,7 @@ HELP = 'fit the herd model to a trajectory CSV, GPS CSV or bag; write the model 
 
 
 def add_arguments(p):
+    """The verb's options (``herd-ros VERB --help``)."""
     p.add_argument('data', help='trajectory CSV (time,agent,x,y[,run]), GPS CSV, GPX or bag')
     p.add_argument('-o', '--output', required=True, help='model file to write (ROS params YAML)')
     p.add_argument('--terms', default='auto', choices=('auto',) + TERMS + ('full',),
@@ -142,6 +143,7 @@ def _memories(args) -> tuple[float, tuple]:
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     # '' = auto (the selection may nominate a driver); 'none' = no own profile
     own_agents = [a.strip() for a in args.interact_with_own_profile.split(',') if a.strip()]
     if own_agents == ['none']:

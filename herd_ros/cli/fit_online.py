@@ -17,6 +17,8 @@ from herd_ros.estimation.online_fit import online_fit, write_params_csv
 
 
 def run_online(args) -> int:
+    """``herd-ros fit --online``: the recursive least squares over the data, the model file and
+    the parameters over time."""
     grid = parse_grid(args.grid)
     bounds = parse_floats(args.bounds, 4, '--bounds') if args.bounds else None
     if not 0 < args.forgetting <= 1:

@@ -26,6 +26,7 @@ HELP = ('flocking experiments of the report (Olfati-Saber α/β/γ with centre-o
 
 
 def add_arguments(parser):
+    """The verb's options (``herd-ros VERB --help``)."""
     from herd_ros.flocking.olfati_saber import GAMMA_MODES
     from herd_ros.flocking.scenarios import DEFAULT_ADVERSARIES, DEFAULT_SUBSTEPS, DT, SCENARIOS
 
@@ -74,6 +75,7 @@ def load_flocking_params(path: Path | None):
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     from tqdm import tqdm
 
     from herd_ros.flocking.scenarios import make_scenario, simulate, tracking_summary
@@ -114,6 +116,7 @@ def run(args) -> int:
 # --- files -------------------------------------------------------------------------------
 
 def write_csvs(out: Path, runs) -> list[Path]:
+    """The flocking runs as trajectory CSVs in ``out``; returns the files written."""
     import pandas as pd
 
     from herd_ros.flocking.metrics import METRIC_NAMES
@@ -139,6 +142,7 @@ def write_csvs(out: Path, runs) -> list[Path]:
 
 
 def print_summary(args, params, runs, summaries, written):
+    """The flocking verb's short summary on stdout."""
     def med(values):
         values = [v for v in values if not math.isnan(v)]
         return float(np.median(values)) if values else float('nan')

@@ -15,6 +15,7 @@ HELP = 'write the herd file of a bag or GPS file (datum, clock, field, fence, ro
 
 
 def add_arguments(p):
+    """The verb's options (``herd-ros VERB --help``)."""
     p.add_argument('data', help='rosbag2 of NavSatFix on /herd/<agent>/fix, or a GPS CSV/GPX')
     p.add_argument('-o', '--out', default='herd.yaml', help='herd file to write')
     p.add_argument('--dt', type=float, default=None,
@@ -25,6 +26,7 @@ def add_arguments(p):
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     from herd_ros.herd_file import write_herd_file
     from herd_ros.herd_setup import LIVE_MIN_DT, herd_setup_from_fixes
     from herd_ros.ingest.pipeline import load_fixes

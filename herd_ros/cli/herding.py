@@ -31,6 +31,7 @@ def _values(text: str, option: str, kind=int) -> list:
 
 
 def add_arguments(p):
+    """The verb's options (``herd-ros VERB --help``)."""
     p.add_argument('--out', type=Path, required=True, help='output directory')
     p.add_argument('--animals', default='14', help='herd sizes N, comma-separated')
     p.add_argument('--herders', default='1', help='numbers of herders, comma-separated')
@@ -53,6 +54,8 @@ def add_arguments(p):
 
 
 def settings_of(args):
+    """The benchmark settings of the parsed lists of animals, herders, noises, cohesions and
+    families."""
     from herd_ros.herding.benchmark import Setting
     out = []
     from herd_ros.herding.benchmark import FAMILIES
@@ -81,6 +84,7 @@ def model_herder(setting):
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     from herd_ros.cli.common import progress
     from herd_ros.herding.benchmark import run_episodes, strombom_herder, summarise
     herders = [h.strip() for h in args.herder.split(',') if h.strip()]

@@ -19,6 +19,7 @@ HELP = 'learn swarm imitation policies (gains, radius, v_max) from a trajectory 
 
 
 def parse_walls(text):
+    """The box ``XMIN,XMAX,YMIN,YMAX`` of ``--walls`` as four numbers (None when not given)."""
     if text is None:
         return None
     try:
@@ -32,6 +33,7 @@ def parse_walls(text):
 
 
 def add_arguments(parser):
+    """The verb's options (``herd-ros VERB --help``)."""
     parser.add_argument('data', help='trajectory CSV: time,agent,x,y[,run]')
     parser.add_argument('-o', '--output', required=True, help='policy YAML to write')
     parser.add_argument('--policies', default='cohesion,separation2,alignment',
@@ -99,6 +101,7 @@ def _write_report(directory: Path, fit, runs, comparison):
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     from tqdm import tqdm
 
     from herd_ros.imitation.learning import learn_policy

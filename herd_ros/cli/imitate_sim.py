@@ -9,6 +9,7 @@ HELP = 'simulate a swarm from an imitation policy file into a trajectory CSV'
 
 
 def add_arguments(parser):
+    """The verb's options (``herd-ros VERB --help``)."""
     parser.add_argument('policy', help='policy YAML (kind: imitation)')
     parser.add_argument('-o', '--output', required=True, help='trajectory CSV to write')
     parser.add_argument('--agents', type=int, default=40, help='agents per run')
@@ -22,6 +23,7 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     from herd_ros.cli.imitate import parse_walls
     from herd_ros.errors import HerdInputError
     from herd_ros.imitation.boids import simulate_runs

@@ -9,6 +9,7 @@ HELP = 'convert a GPS CSV, Movebank CSV or GPX file to a rosbag2 of NavSatFix'
 
 
 def add_arguments(parser):
+    """The verb's options (``herd-ros VERB --help``)."""
     parser.add_argument('src', metavar='SRC', help='GPS CSV, Movebank CSV or GPX file')
     parser.add_argument('-o', '--output', required=True, metavar='BAG',
                         help='bag directory to create')
@@ -19,6 +20,7 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     from herd_ros.io.bags import bag_info, write_fix_bag
     from herd_ros.io.gps_files import read_fix_file, sniff_format
     from herd_ros.errors import HerdInputError

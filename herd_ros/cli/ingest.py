@@ -62,6 +62,7 @@ def add_filter_arguments(parser):
 
 
 def filter_kwargs(args) -> dict:
+    """The filter parameters given on the command line (None = from the data)."""
     return dict(motion_model=args.motion_model, walk_probability=args.walk_probability,
                 accel_std=args.accel_std, velocity_tau=args.velocity_tau,
                 default_position_std=args.default_position_std,
@@ -71,6 +72,7 @@ def filter_kwargs(args) -> dict:
 
 
 def add_arguments(parser):
+    """The verb's options (``herd-ros VERB --help``)."""
     parser.add_argument('data', metavar='DATA',
                         help='GPS CSV, Movebank CSV, GPX, rosbag2 directory or .mcap file')
     parser.add_argument('-o', '--output', required=True, help='trajectory CSV to write')
@@ -89,6 +91,7 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     from herd_ros.ingest.pipeline import format_counters, load_fixes, trajectory_from_fixes
     from herd_ros.trajectory import write_trajectory_csv
 

@@ -10,6 +10,7 @@ HELP = "show a node's parameters (table or YAML) or write the config/*.yaml file
 
 
 def add_arguments(parser):
+    """The verb's options (``herd-ros VERB --help``)."""
     from herd_ros.params import NODES
     parser.add_argument('node', metavar='NODE', nargs='?', choices=NODES,
                         help=f'one of {", ".join(NODES)}; none = all')
@@ -31,6 +32,7 @@ def _tables(node):
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     from herd_ros.params import markdown_table, render_yaml
     tables = _tables(args.node)
     if args.write:

@@ -23,6 +23,7 @@ HELP = 'predict every agent K steps ahead with a model file, with the covariance
 
 
 def add_arguments(p):
+    """The verb's options (``herd-ros VERB --help``)."""
     p.add_argument('model', help='model file written by `herd-ros fit` (any kind)')
     p.add_argument('data', help="trajectory CSV in the model's frame, or GPS data (GPS CSV, "
                                 "Movebank, GPX, bag: converted with the model's datum)")
@@ -52,6 +53,7 @@ def _runs_for(model, path):
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     if args.steps < 1:
         raise HerdInputError(f'--steps must be at least 1, got {args.steps}')
     dyn = HerdDynamics.load(args.model)

@@ -12,6 +12,7 @@ HELP = 'figures (paper Figs. 2-6) and summary.json of a model file on a data fil
 
 
 def add_arguments(p):
+    """The verb's options (``herd-ros VERB --help``)."""
     p.add_argument('model', help='model file')
     p.add_argument('data', help='trajectory CSV, GPS CSV or bag to evaluate on')
     p.add_argument('--out', required=True, help='report directory')
@@ -20,6 +21,7 @@ def add_arguments(p):
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     from herd_ros.report.fit_figures import write_fit_figures
     dyn = HerdDynamics.load(args.model)
     runs, _ = load_runs(args.data, dt=args.dt or dyn.model.dt)

@@ -16,6 +16,7 @@ HELP = ('simulate the learned laws of a model file (noise from each agent\'s Q_i
 
 
 def add_arguments(p):
+    """The verb's options (``herd-ros VERB --help``)."""
     p.add_argument('model', help='model file written by `herd-ros fit`')
     p.add_argument('--steps', type=int, default=3600, help='number of time steps')
     p.add_argument('--seed', type=int, default=0, help='noise seed')
@@ -53,6 +54,7 @@ def first_state(p: np.ndarray, dt: float, source) -> tuple[np.ndarray, np.ndarra
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     if args.steps < 2:
         raise HerdInputError(f'--steps must be at least 2, got {args.steps}')
     dyn = HerdDynamics.load(args.model)

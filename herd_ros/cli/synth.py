@@ -13,6 +13,7 @@ HELP = 'synthesize herd data: from a herd-model law (known truth) or the realist
 
 
 def add_arguments(p):
+    """The verb's options (``herd-ros VERB --help``)."""
     p.add_argument('--law', choices=('schwager',), help='data from the herd model')
     p.add_argument('--scenario', choices=('cows',), help='realistic cows (not in the model '
                                                          'class): grazing/walking/resting')
@@ -40,6 +41,7 @@ def add_arguments(p):
 
 
 def run(args) -> int:
+    """Run the verb on the parsed ``args``; returns the exit status."""
     if (args.law is None) == (args.scenario is None):
         raise HerdInputError('give exactly one of --law schwager or --scenario cows')
     if args.law:

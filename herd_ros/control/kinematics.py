@@ -44,6 +44,7 @@ KINEMATICS = ('holonomic', 'unicycle')
 
 
 def check_kinematics(name: str) -> str:
+    """``name`` if it is one of :data:`KINEMATICS`; one clear error otherwise."""
     if name not in KINEMATICS:
         raise HerdInputError(f'kinematics must be one of {", ".join(KINEMATICS)}, got {name!r}')
     return name

@@ -606,6 +606,8 @@ class OnlineHerdEstimator:
 # -- offline driver: `herd-ros fit --online` ------------------------------------------------
 @dataclass
 class OnlineFitResult:
+    """What ``herd-ros fit --online`` learned: the estimator and θ over time (rows at ``times``,
+    per ``runs`` label)."""
     estimator: OnlineHerdEstimator
     times: np.ndarray          # (R,) times of the recorded rows
     runs: list                 # (R,) run label of each row

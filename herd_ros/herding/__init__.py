@@ -1,0 +1,1 @@
+"""Herding: Strömbom's sheep and shepherd, the benchmark, the model herder, the live graph."""

@@ -139,6 +139,8 @@ def half_sample_mode(x: np.ndarray) -> float:
 
 @dataclass
 class VmaxEstimate:
+    """The agents' top speed as estimated from the data, and how (the mode of the saturated
+    speeds or a percentile)."""
     v_max: float
     percentile: float
     mode: float
@@ -210,6 +212,8 @@ def _prediction_jacobian(theta: np.ndarray, k: np.ndarray, v_max: float):
 
 @dataclass
 class GainFit:
+    """The fitted gains of a policy with their standard errors, the linear start and whether the
+    fit converged."""
     gains: np.ndarray
     gains_se: np.ndarray
     linear_gains: np.ndarray
@@ -323,6 +327,7 @@ def refine_v_max(theta: np.ndarray, targets: np.ndarray, gains: np.ndarray, v_st
 
 @dataclass
 class RadiusSearch:
+    """The interaction radius chosen by one-step error, with every radius tried and its loss."""
     radius: float
     radii: np.ndarray     # every r evaluated, in evaluation order
     losses: np.ndarray    # one-step MAE at each

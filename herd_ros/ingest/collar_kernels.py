@@ -489,6 +489,8 @@ def record_states(collar, stamp, x, P, motion, next_tick, count, rt, rx, rP, rm)
 
 @_jit
 def snapshot(tick, count, rt, rx, rP, rm, stale_after, x, P, stale, init):
+    """Every collar's state at ``tick`` from its record (the herd clock's snapshot, compiled):
+    the last record at or before the tick, predicted to it; NaN past ``stale_after``."""
     for i in range(count.shape[0]):
         k = count[i] - 1
         while k >= 0 and rt[i, k] > tick:

@@ -135,6 +135,7 @@ def decode_navsatfixes(messages) -> tuple[NavSatFixes, list[tuple[int, str]]]:
 
 
 def no_fixes() -> NavSatFixes:
+    """An empty batch of fixes."""
     return NavSatFixes([], np.zeros(0), np.zeros(0, np.int64), np.zeros(0), np.zeros(0),
                     np.zeros(0), np.zeros((0, 9)), np.zeros(0, np.int64))
 
@@ -149,6 +150,7 @@ def take_fixes(batch: NavSatFixes, keep) -> NavSatFixes:
 
 
 def concat_fixes(batches) -> NavSatFixes:
+    """The batches of fixes ``batches`` as one batch, in order."""
     batches = [b for b in batches if len(b.stamp)]
     if not batches:
         return no_fixes()

@@ -54,6 +54,8 @@ _LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
 
 
 def check_agent_id(agent: str) -> str:
+    """``agent`` if it is a valid ROS name part (letters, digits, underscores, starting with a
+    letter); one clear error otherwise."""
     if not ROS_TOKEN.match(str(agent)):
         raise HerdInputError(f'agent id {agent!r} is not a valid ROS name (letters, digits and '
                              f'underscores, starting with a letter): it becomes a topic and '

@@ -33,6 +33,7 @@ try:
     from numba import njit
 except ImportError:  # pragma: no cover - numba is an install requirement
     def njit(*args, **kwargs):
+        """numba's decorator where numba is absent: the function unchanged."""
         return (lambda f: f) if not args or not callable(args[0]) else args[0]
 
 #: Regime counts the selection tries (1 = plain Gaussian noise).

@@ -453,6 +453,7 @@ def save_shared_model(model: SharedLawModel, path, selection: dict | None = None
 
 
 def load_shared_model(path) -> SharedLawModel:
+    """The shared-law model in the model file ``path``."""
     return shared_model_from_dict(load_model_body(path), source=str(path))
 
 

@@ -53,6 +53,7 @@ def yaw_from_quaternion(q) -> float:
 
 
 class Controller(Node):
+    """The ``controller`` node (module docstring)."""
     def __init__(self):
         super().__init__('controller', automatically_declare_parameters_from_overrides=True)
         p = declare_parameters(self, DEFAULTS)
@@ -197,6 +198,7 @@ class Controller(Node):
 
 
 def main(args=None):
+    """Run the node (``ros2 run herd_ros NODE``); exits with its status."""
     exit_process(run_node(Controller, args=args))
 
 

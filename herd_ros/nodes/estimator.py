@@ -236,6 +236,7 @@ class Estimator(Node):
 
 
 def main(args=None):
+    """Run the node (``ros2 run herd_ros NODE``); exits with its status."""
     exit_process(run_node(Estimator, args=args))
 
 

@@ -29,10 +29,12 @@ from herd_ros.simulation.fleet import FleetSimulator
 
 
 def yaw_to_quaternion(yaw: float):
+    """(x, y, z, w) of a rotation by ``yaw`` about z."""
     return 0.0, 0.0, float(np.sin(yaw / 2.0)), float(np.cos(yaw / 2.0))
 
 
 class FleetSim(Node):
+    """The ``fleet_sim`` node (module docstring)."""
     def __init__(self):
         super().__init__('fleet_sim')
         self.cfg = cfg = FleetSimConfig(declare_parameters(self, DEFAULTS))
@@ -163,6 +165,7 @@ class FleetSim(Node):
 
 
 def main(args=None):
+    """Run the node (``ros2 run herd_ros NODE``); exits with its status."""
     exit_process(run_node(FleetSim, args=args))
 
 

@@ -52,6 +52,7 @@ UNOBSERVED_VARIANCE = 1e6
 
 
 class GpsIngest(Node):
+    """The ``gps_ingest`` node (module docstring)."""
     #: collar statuses built and published (one DiagnosticArray) per step of the job: with
     #: many collars, building a report (~45 ms per 1 000 collars, ~0.1 s to convert) at once
     #: would hold every fix back, so it is built between batches
@@ -239,6 +240,7 @@ class GpsIngest(Node):
 
 
 def main(args=None):
+    """Run the node (``ros2 run herd_ros NODE``); exits with its status."""
     exit_process(run_node(GpsIngest, args=args))
 
 

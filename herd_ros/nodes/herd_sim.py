@@ -35,6 +35,7 @@ def animal_names(n: int) -> list[str]:
 
 
 class HerdSim(Node):
+    """The ``herd_sim`` node (module docstring)."""
     def __init__(self):
         super().__init__('herd_sim')
         p = declare_parameters(self, DEFAULTS)
@@ -132,6 +133,7 @@ class HerdSim(Node):
 
 
 def main(args=None):
+    """Run the node (``ros2 run herd_ros NODE``); exits with its status."""
     exit_process(run_node(HerdSim, args=args))
 
 

@@ -34,6 +34,7 @@ def model_markers(core, frame: str, prediction=None) -> MarkerArray:
 
 
 def pose_at(x: float, y: float) -> Pose:
+    """A Pose at (x, y, 0) with no rotation."""
     pose = Pose()
     pose.position.x, pose.position.y = float(x), float(y)
     pose.orientation.w = 1.0

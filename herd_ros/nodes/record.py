@@ -171,6 +171,7 @@ class Record(Node):
 
 
 def main(args=None):
+    """Run the node (``ros2 run herd_ros NODE``); exits with its status."""
     exit_process(run_node(Record, args=args))
 
 

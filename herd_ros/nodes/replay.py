@@ -213,6 +213,7 @@ class Replay(Node):
 
 
 def main(args=None):
+    """Run the node (``ros2 run herd_ros NODE``); exits with its status."""
     exit_process(run_node(Replay, args=args))
 
 

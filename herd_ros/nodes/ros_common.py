@@ -244,6 +244,7 @@ def refresh_status(status: DiagnosticStatus | None, name: str, level, message: s
 
 
 def diagnostic_array(node, statuses) -> DiagnosticArray:
+    """A DiagnosticArray of ``statuses`` stamped with ``node``'s clock."""
     msg = DiagnosticArray()
     msg.header.stamp = node.get_clock().now().to_msg()
     msg.status = list(statuses)

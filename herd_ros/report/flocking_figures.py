@@ -50,6 +50,7 @@ def draw_snapshot(ax, run, k: int):
 
 
 def plot_all(out: Path, runs) -> list[Path]:
+    """Every figure of the flocking runs ``runs`` into ``out``; returns the files written."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
