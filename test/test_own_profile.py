@@ -100,16 +100,18 @@ def test_a_dog_with_its_own_profile_is_recovered_and_predicts_better(driven):
     sel, model = fits[True]
     assert model.own_agents == ['dog'] and not fits[False][1].own_agents
     # the sheep flee the dog: over the distances at which the dog usually is (quartiles of
-    # the data), every sheep's H(d) < 0 and the flock's mean H(d) within 35 % of the truth's
-    # (one sheep's profile is confounded with its pooled one: the dog and the flock lie on
-    # one line while it drives them; beyond where the dog goes the data say nothing)
+    # the data), every sheep's H(d) < 0 and the flock's mean H(d) within 5 % of the truth's
+    # (beyond where the dog goes the data say nothing). The pooled profile's radius is chosen
+    # by cross-validation: at the default 10 m (the flock is packed) the cohesion the truth
+    # exerts out to 40 m was put down to the dog, whose profile came out 14 % weak
+    assert sel.radius_choice and sel.profile.radius > 10.0, sel.radius_choice
     p = runs[0]
     d_dog = np.sqrt(((p[:, :-1] - p[:, -1:]) ** 2).sum(-1))
     for d in np.percentile(d_dog, [25, 50, 75]):
         got = np.array([model.own_profile.force(model.own_coef[i, 0], d) for i in range(15)])
         want = np.array([truth.own_profile.force(truth.own_coef[i, 0], d) for i in range(15)])
         assert np.all(got < 0), (d, got)
-        assert abs(got.mean() - want.mean()) < 0.35 * abs(want.mean()), (d, got, want)
+        assert abs(got.mean() - want.mean()) < 0.05 * abs(want.mean()), (d, got, want)
     assert np.all(model.own_coef[-1] == 0)                  # the dog's block with itself
     with_dog = sheep_rms(model, test, agents)
     pooled = sheep_rms(fits[False][1], test, agents)
