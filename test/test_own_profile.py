@@ -95,9 +95,10 @@ def test_a_dog_with_its_own_profile_is_recovered_and_predicts_better(driven):
     fits = {}
     for own, sel in ((True, auto), (False, select_model(runs, agents, train[0].dt,
                                                          own_agents=[]))):
-        fits[own] = (sel, fit_structure(train, sel.chosen, law=sel.law, profile=sel.profile,
-                                        bounds=sel.bounds).model)
-    sel, model = fits[True]
+        result = fit_structure(train, sel.chosen, law=sel.law, profile=sel.profile,
+                               bounds=sel.bounds)
+        fits[own] = (sel, result.model, result.fits)
+    sel, model, agent_fits = fits[True]
     assert model.own_agents == ['dog'] and not fits[False][1].own_agents
     # the sheep flee the dog: over the distances at which the dog usually is (quartiles of
     # the data), every sheep's H(d) < 0 and the flock's mean H(d) within 5 % of the truth's
@@ -107,11 +108,20 @@ def test_a_dog_with_its_own_profile_is_recovered_and_predicts_better(driven):
     assert sel.radius_choice and sel.profile.radius > 10.0, sel.radius_choice
     p = runs[0]
     d_dog = np.sqrt(((p[:, :-1] - p[:, -1:]) ** 2).sum(-1))
+    B, Bo = model.profile.size, model.own_profile.size
     for d in np.percentile(d_dog, [25, 50, 75]):
         got = np.array([model.own_profile.force(model.own_coef[i, 0], d) for i in range(15)])
         want = np.array([truth.own_profile.force(truth.own_coef[i, 0], d) for i in range(15)])
         assert np.all(got < 0), (d, got)
         assert abs(got.mean() - want.mean()) < 0.05 * abs(want.mean()), (d, got, want)
+        # and within 2 standard errors (issue 27, acceptance 4): H(d) is linear in each
+        # sheep's own-profile block of θ_i = [damping, profile.., own_profile..], the sheep
+        # are fitted apart, so the flock mean's variance is Σ_i ψᵀ Cov_i ψ / 15²
+        psi = np.array([model.own_profile.force(np.eye(Bo)[b], d) for b in range(Bo)])
+        var = sum(psi @ agent_fits[a].theta_cov[1 + B:1 + B + Bo, 1 + B:1 + B + Bo] @ psi
+                  for a in agents[:15])
+        assert abs(got.mean() - want.mean()) < 2 * np.sqrt(var) / 15, (d, got.mean(),
+                                                                      want.mean(), var)
     assert np.all(model.own_coef[-1] == 0)                  # the dog's block with itself
     with_dog = sheep_rms(model, test, agents)
     pooled = sheep_rms(fits[False][1], test, agents)
