@@ -35,6 +35,15 @@ def test_ingest_gps_csv(gps_csv, tmp_path, capsys, smoother):
     assert rc == 0
     text = capsys.readouterr().out
     assert 'datum: lat 27.015300000 lon -108.793700000' in text and 'cow_2' in text
+    # per collar, what was kept and why anything was not: every input fix is counted once
+    table = pd.read_csv(out.with_suffix('.collars.csv'))
+    fixes = pd.read_csv(gps_csv)
+    assert list(table['agent']) == ['cow_0', 'cow_1', 'cow_2']
+    for _, row in table.iterrows():
+        counted = row['accepted'] + sum(row[c] for c in table.columns
+                                        if c.startswith('rejected_'))
+        assert counted == (fixes['agent'] == row['agent']).sum()
+    assert {'from_h', 'to_h', 'ticks'} <= set(table.columns)
     (traj,) = read_trajectory_csv(out)           # uniform, complete: what `fit` needs
     assert traj.agents == ['cow_0', 'cow_1', 'cow_2'] and traj.dt == pytest.approx(2.0)
     assert traj.n_steps > 140
@@ -85,3 +94,14 @@ def test_bad_input_exits_2_with_one_line(tmp_path, gps_csv, capsys, argv, messag
     assert rc == 2
     assert len(err) == 1 and err[0].startswith(f'herd-ros {argv[0]}: error:')
     assert message in err[0]
+
+
+def test_large_herds_print_the_collars_that_lost_the_most():
+    from herd_ros.ingest.pipeline import lost_most
+    counters = {f'c{k}': {'accepted': 100, 'rejected_gate': k % 7, 'rejected_speed': k % 3,
+                          'reinitialised': 50} for k in range(40)}
+    shown = lost_most(counters, 3)
+    lost = {a: c['rejected_gate'] + c['rejected_speed'] for a, c in counters.items()}
+    assert len(shown) == 3
+    assert sorted(lost[a] for a in shown) == sorted(lost.values())[-3:]
+    assert list(shown) == [a for a in counters if a in shown]      # in the table's order

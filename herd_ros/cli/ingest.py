@@ -124,9 +124,25 @@ def run(args) -> int:
           f'trailing ticks cut); stale agent-ticks (NaN: before a collar\'s first fix, '
           f'after its last, or silent longer than '
           f'{traj.meta["filter_params"].stale_after:g} s): {int(stale.sum())} of {stale.size}')
-    print(format_counters(traj.meta['counters'], collar_spans(traj)))
-    if traj.meta.get('motion_fits') is not None:
-        from herd_ros.ingest.pipeline import format_motion_fits
-        print(format_motion_fits(traj.meta['motion_fits']))
-    print(f'wrote {args.output} (smoother: {args.smoother})')
+    from herd_ros.ingest.pipeline import (PRINTED_COLLARS, collar_table, format_motion_fits,
+                                          lost_most)
+    counters, spans = traj.meta['counters'], collar_spans(traj)
+    fits = traj.meta.get('motion_fits')
+    table_path = Path(args.output).with_suffix('.collars.csv')
+    collar_table(counters, spans, fits).to_csv(table_path, index=False, float_format='%.6g')
+    if len(counters) > PRINTED_COLLARS:
+        shown = lost_most(counters, 10)
+        total = {k: sum(c.get(k, 0) for c in counters.values()) for k in
+                 ('accepted', 'rejected_no_fix', 'rejected_nan', 'rejected_time',
+                  'rejected_gate', 'rejected_speed', 'rejected_unconfirmed')}
+        print(f'{len(counters)} collars: ' + ', '.join(
+            f'{k.replace("rejected_", "")} {v}' for k, v in total.items())
+            + f'; the {len(shown)} that lost the most fixes:')
+        print(format_counters(shown, spans))
+    else:
+        print(format_counters(counters, spans))
+        if fits is not None:
+            print(format_motion_fits(fits))
+    print(f'wrote {args.output} (smoother: {args.smoother}) and, per collar, what was kept '
+          f'and why anything was not: {table_path}')
     return 0

@@ -627,6 +627,46 @@ def format_counters(counters: dict, spans: dict | None = None) -> str:
     return '\n'.join(lines)
 
 
+#: above this many collars ``herd-ros ingest`` prints only the collars that lost the most
+#: fixes (the whole table goes to a CSV beside the output)
+PRINTED_COLLARS = 30
+
+
+def collar_table(counters: dict, spans: dict | None = None, fits: dict | None = None):
+    """Per collar, everything the ingest says of it, as a DataFrame (rows: collars): the
+    :data:`COUNTERS` (accepted and each rejection reason), its span on the clock
+    (:func:`collar_spans`: from_h, to_h, ticks) and its last fitted motion model (model,
+    tau_v_s, D_m2_s, speed_ms, fix_std_m, fixes_fitted)."""
+    import pandas as pd
+    rows = []
+    for agent, c in counters.items():
+        row = {'agent': agent, **{k: int(c.get(k, 0)) for k in COUNTERS}}
+        if c.get('rejected_future'):
+            row['rejected_future'] = int(c['rejected_future'])
+        if spans is not None:
+            lo, hi, n = spans.get(agent, (np.nan, np.nan, 0))
+            row.update(from_h=lo / 3600, to_h=hi / 3600, ticks=int(n))
+        f = (fits or {}).get(agent)
+        if fits is not None:
+            row.update(model=f.model if f is not None else 'prior',
+                       tau_v_s=f.velocity_tau if f is not None else np.nan,
+                       D_m2_s=f.diffusion if f is not None else np.nan,
+                       speed_ms=f.speed_std if f is not None else np.nan,
+                       fix_std_m=f.position_std if f is not None else np.nan,
+                       fixes_fitted=f.n_fixes if f is not None else 0)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def lost_most(counters: dict, k: int) -> dict:
+    """The ``k`` collars of ``counters`` with the most fixes not accepted (any reason but
+    ``reinitialised``), in the table's order."""
+    lost = {a: sum(v for key, v in c.items() if key.startswith('rejected_'))
+            for a, c in counters.items()}
+    keep = set(sorted(lost, key=lambda a: -lost[a])[:k])
+    return {a: c for a, c in counters.items() if a in keep}
+
+
 def format_motion_fits(fits: dict) -> str:
     """A small table of each collar's last fitted motion model: the model chosen by AIC,
     τ_v (s), the long-run diffusion D (m²/s per axis), the speed std (m/s per axis), the
