@@ -58,10 +58,10 @@ demo: install-self
 	$(VENV)/bin/herd-ros demo --out demo_out
 
 # pycodestyle errors and warnings and pyflakes, lines up to 100; the package, the launch files
-# and doc/conf.py also the pydocstyle rules for public functions, classes and packages
-# (D103, D101, D104; issue 28: methods, D102, are not on yet)
+# and doc/conf.py also the pydocstyle rules for public functions, methods, classes and
+# packages (D103, D102, D101, D104)
 RUFF := $(PY) -m ruff check --quiet --line-length 100
-LINT := $(RUFF) --select E,F,W,D101,D103,D104 herd_ros launch doc setup.py && \
+LINT := $(RUFF) --select E,F,W,D101,D102,D103,D104 herd_ros launch doc setup.py && \
         $(RUFF) --select E,F,W test
 
 lint: install-self

@@ -77,6 +77,7 @@ class HerdSetup:
     notes: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
+        """Plain types, for the herd file and summary.json."""
         return asdict(self)
 
     def describe(self) -> str:

@@ -50,10 +50,12 @@ class HerdTrajectory:
 
     @property
     def n_steps(self) -> int:
+        """Number of clock steps T."""
         return int(self.positions.shape[0])
 
     @property
     def n_agents(self) -> int:
+        """Number of agents N."""
         return int(self.positions.shape[1])
 
     def slice(self, start: int, stop: int) -> 'HerdTrajectory':

@@ -38,6 +38,7 @@ class HerdingRecorder:
         node.create_subscription(MarkerArray, '/herding/markers', self.on_markers, 10)
 
     def on_markers(self, msg):
+        """Count one /herding/markers message."""
         with self.lock:
             self.markers += 1
 
@@ -47,12 +48,14 @@ class HerdingRecorder:
                         dtype=float).reshape(-1, 2)
 
     def on_herd(self, msg):
+        """Keep a /herd/poses snapshot with the robots' latest positions."""
         with self.lock:
             self.times.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
             self.herd.append(self._xy(msg))
             self.robots.append(self.latest.copy())
 
     def on_fleet(self, msg):
+        """Keep the robots' latest positions from /fleet/poses."""
         xy = self._xy(msg)
         with self.lock:
             if xy.shape == self.latest.shape:

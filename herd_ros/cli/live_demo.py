@@ -47,6 +47,7 @@ class DemoRecorder:
         return np.array([[p.position.x, p.position.y] for p in msg.poses], dtype=float)
 
     def on_herd(self, msg):
+        """Keep a /herd/poses snapshot with the robots' latest positions."""
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         with self.lock:
             self.herd_times.append(t)
@@ -54,12 +55,14 @@ class DemoRecorder:
             self.robots.append(self.latest_robots.copy())
 
     def on_prediction(self, msg):
+        """Keep one of the estimator's one-step predictions."""
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         with self.lock:
             self.pred_times.append(t)
             self.preds.append(self._xy(msg))
 
     def on_fleet(self, msg):
+        """Keep the robots' latest positions and note when they first move."""
         xy = self._xy(msg)
         with self.lock:
             if xy.shape == self.latest_robots.shape:
@@ -70,6 +73,7 @@ class DemoRecorder:
                 self.latest_robots = xy
 
     def on_params(self, msg):
+        """Keep the learned parameters (agent × param) at the latest herd tick."""
         dims = msg.layout.dim
         if len(dims) != 2:
             return

@@ -116,6 +116,7 @@ class FleetState:
         return world_to_body(self.velocity, self.yaw)
 
     def copy(self) -> 'FleetState':
+        """A copy of the state (arrays copied)."""
         return FleetState(self.positions.copy(), self.yaw.copy(), self.velocity.copy())
 
 

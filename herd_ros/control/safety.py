@@ -105,6 +105,8 @@ class Fence:
 
     @staticmethod
     def from_flat(values, name: str = 'fence') -> 'Fence | None':
+        """The fence of a flat [x1, y1, x2, y2, ...] list (None when empty); one clear error
+        naming ``name`` otherwise."""
         vertices = polygon_from_flat(values, name)
         return None if vertices is None else Fence(vertices)
 
@@ -212,6 +214,8 @@ class Obstacles:
 
     @staticmethod
     def from_flat(values, name: str = 'obstacles') -> 'Obstacles':
+        """The obstacles of a flat [x, y, r, ...] list; one clear error naming ``name``
+        otherwise."""
         return Obstacles(circles_from_flat(values, name))
 
     def __len__(self):

@@ -66,6 +66,7 @@ class LeastSquaresFit:
 
     @property
     def rms(self) -> float:
+        """RMS (m/s) of the residual velocity vectors."""
         return float(np.sqrt((self.residuals ** 2).sum(-1).mean()))
 
 

@@ -82,10 +82,12 @@ class ValidationTail:
 
     @property
     def longest(self):
+        """The longest run of the validation tail."""
         return max(self.tail, key=lambda r: r.n_steps)
 
     @property
     def space_use_model(self):
+        """The law with the space-use field of the tail's training part (made once)."""
         if self._space_use is None:
             from herd_ros.model.space_use_field import with_space_use_field
             self._space_use = with_space_use_field(self.model, np.concatenate(self.positions))

@@ -102,11 +102,14 @@ class Structure:
 
     @property
     def terms(self) -> str:
+        """The terms as ``damping[+interactions][+alignment][+field]``."""
         return 'damping' + ('+interactions' if self.interactions else '') + \
             ('+alignment' if self.alignment is not None else '') + \
             ('+field' if self.grid is not None else '')
 
     def label(self) -> str:
+        """One line for the selection table: terms, grid, own profiles, memory, alignment,
+        ridge."""
         g = f' {self.grid[0]}x{self.grid[1]}' if self.grid is not None else ''
         o = f' own profile {",".join(self.own)}' if self.own else ''
         m = ''

@@ -76,9 +76,11 @@ class PairwiseRegressor:
         self.field_offset = 2 * n - 1                 # index of field_u[0] in θ_i
 
     def neighbors(self, i: int) -> list[str]:
+        """The neighbours of agent ``i`` in the order of its θ1/θ2 entries."""
         return [a for k, a in enumerate(self.agents) if k != i]
 
     def labels(self) -> list[str]:
+        """The names of θ_i's entries (pairwise law), in order."""
         n, K = len(self.agents), self.basis.size
         return (['damping'] + [f'theta1_{k}' for k in range(1, n)]
                 + [f'theta2_{k}' for k in range(1, n)]
@@ -107,6 +109,8 @@ class PairwiseRegressor:
         return np.zeros(len(self.agents), dtype=bool)
 
     def to_model(self, theta, theta_se, noise_cov, bases, dt, frame_id='map', datum=None):
+        """The pairwise :class:`HerdModel` of the estimate θ (agent × param), its standard
+        errors and Q."""
         n, K = len(self.agents), self.basis.size
         laws = {}
         for i, a in enumerate(self.agents):
@@ -134,11 +138,13 @@ class SharedRegressor:
         self.field_offset = 1 + profile.size
 
     def labels(self) -> list[str]:
+        """The names of θ_i's entries (shared law), in order."""
         K = self.basis.size
         return (['damping'] + [f'profile_{b}' for b in range(self.profile.size)]
                 + [f'field_u_{k}' for k in range(K)] + [f'field_v_{k}' for k in range(K)])
 
     def rows(self, p_prev, p_cur, dt):
+        """The regression rows of one snapshot pair, and which agents have one."""
         return shared_rows(p_prev, p_cur, dt, self.profile, self.basis)
 
     def missing_neighbors(self, missing: np.ndarray, last_seen: np.ndarray, p_prev):
@@ -147,6 +153,8 @@ class SharedRegressor:
         return np.zeros(len(self.agents), dtype=bool)
 
     def to_model(self, theta, theta_se, noise_cov, bases, dt, frame_id='map', datum=None):
+        """The :class:`SharedLawModel` of the estimate θ (agent × param), its standard errors
+        and Q."""
         B, K = self.profile.size, self.basis.size
         fu, fv, bs, se = [], [], [], []
         for i in range(len(self.agents)):
@@ -176,9 +184,11 @@ class AlignedRegressor:
         return getattr(self.base, name)
 
     def labels(self) -> list[str]:
+        """The base law's names of θ_i's entries, then the alignment weights'."""
         return self.base.labels() + [f'alignment_{b}' for b in range(self.kernel.size)]
 
     def rows(self, p_prev, p_cur, dt):
+        """The base law's regression rows of one snapshot pair with the alignment columns added."""
         H, valid = self.base.rows(p_prev, p_cur, dt)
         p0 = np.asarray(p_prev, dtype=float)
         u = (np.asarray(p_cur, dtype=float) - p0) / dt
@@ -186,9 +196,11 @@ class AlignedRegressor:
         return np.concatenate([H, np.swapaxes(A, 1, 2)], axis=2), valid
 
     def missing_neighbors(self, missing, last_seen, p_prev):
+        """As the base law's."""
         return self.base.missing_neighbors(missing, last_seen, p_prev)
 
     def to_model(self, theta, theta_se, noise_cov, bases, dt, frame_id='map', datum=None):
+        """The base law's model of θ with the alignment weights of θ's last columns."""
         from herd_ros.model.alignment import VelocityAlignment
         B = self.kernel.size
         theta, theta_se = np.asarray(theta), np.asarray(theta_se)
@@ -303,13 +315,16 @@ class OnlineHerdEstimator:
 
     @property
     def samples(self) -> np.ndarray:
+        """Snapshots each agent has been updated with (N,)."""
         return self.rls.samples
 
     @property
     def theta(self) -> np.ndarray:
+        """The current estimate θ (agent × param)."""
         return self.rls.theta
 
     def labels(self) -> list[str]:
+        """The names of θ_i's entries, in order."""
         return self.regressor.labels()
 
     # -- the stream ------------------------------------------------------------------------
@@ -537,6 +552,8 @@ class OnlineHerdEstimator:
 
     # -- checkpoints -----------------------------------------------------------------------
     def state(self) -> dict:
+        """Everything a checkpoint needs to resume (arrays by name): the RLS state, the last
+        three snapshots and the running statistics."""
         n = len(self.agents)
         buf_t = np.full(3, np.nan)
         buf_p = np.full((3, n, 2), np.nan)

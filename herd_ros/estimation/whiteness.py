@@ -51,13 +51,16 @@ class Whiteness:
 
     @property
     def band_90(self) -> float:
+        """The 90 % white-noise band of a sample autocorrelation, ±1.645/√n."""
         return BANDS[0.90] / np.sqrt(self.n)
 
     @property
     def band_95(self) -> float:
+        """The 95 % white-noise band of a sample autocorrelation, ±1.96/√n."""
         return BANDS[0.95] / np.sqrt(self.n)
 
     def as_dict(self) -> dict:
+        """Plain types, for summary.json and the report."""
         return {'n': self.n, 'lags': int(self.lags[-1]), 'inside_90': self.inside_90,
                 'inside_95': self.inside_95, 'ljung_box': self.ljung_box,
                 'ljung_box_dof': self.ljung_box_dof, 'p_value': self.p_value}

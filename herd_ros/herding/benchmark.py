@@ -63,16 +63,20 @@ class Setting:
 
     @property
     def neighbours(self) -> int:
+        """Strömbom's n: the given cohesion, or half the herd."""
         return self.n_neighbours if self.n_neighbours is not None else max(1, self.n_animals // 2)
 
     @property
     def budget(self) -> int:
+        """The step budget of an episode: 1500 + 30 N."""
         return 1500 + 30 * self.n_animals
 
     def sheep(self) -> SheepParams:
+        """Strömbom's sheep of this setting (cohesion n and noise e)."""
         return SheepParams(n_neighbours=self.neighbours, e=self.noise)
 
     def label(self) -> str:
+        """One line naming the setting (animals, herders, noise, cohesion, family)."""
         law = '' if self.family == 'strombom' else f' {self.family}'
         return (f'N={self.n_animals} herders={self.n_herders} e={self.noise:g} '
                 f'n={self.neighbours}{law}')

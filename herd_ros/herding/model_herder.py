@@ -118,6 +118,7 @@ class ModelHerder:
         self.horizon, self.replan, self.arc = int(horizon), int(replan), np.radians(arc_deg)
 
     def __call__(self, P, dogs, goal, sheep, shepherd, state):
+        """Each herder's target (S, D, 2) for the live episodes, replanned every few steps."""
         live = state['live']
         t = state.setdefault('t', 0)
         state['t'] = t + 1

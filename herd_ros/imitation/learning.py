@@ -413,6 +413,7 @@ class ImitationFit:
     first_pass: ImitationPolicy | None = None
 
     def summary(self) -> str:
+        """The fitted gains with their standard errors, one policy per line."""
         p = self.policy
         lines = [f'{"policy":>16s}  {"gain":>8s}  {"se":>7s}']
         for name, k, s in zip(p.policies, p.gains, p.gains_se):

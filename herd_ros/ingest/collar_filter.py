@@ -411,6 +411,7 @@ class CollarFilter:
     # -- state ----------------------------------------------------------------------------
     @property
     def initialised(self) -> bool:
+        """Whether the filter has a track (a first fix accepted)."""
         return bool(np.isfinite(self.t))
 
     @property

@@ -108,6 +108,7 @@ class FixStream:
 
     @property
     def fixes_waiting_for_datum(self) -> int:
+        """Fixes held until the datum is chosen."""
         return sum(len(c) for c, _ in self._pending)
 
     # -- live parameters (accel_std, max_speed, cruise_speed, sprint_s) --------------------

@@ -149,6 +149,7 @@ class TimelineRecorder:
         return True
 
     def timeline(self) -> StateTimeline:
+        """The collar's accepted states so far as a :class:`StateTimeline`."""
         p = self.filter.params
         return StateTimeline(np.asarray(self.t, dtype=float),
                              np.asarray(self.x, dtype=float).reshape(-1, 4),
@@ -380,6 +381,7 @@ class BatchHerdClock:
 
     @property
     def next_tick(self) -> float | None:
+        """The next tick the clock will publish (s), or None before the first fix."""
         return None if self._next_k is None else self._next_k * self.dt
 
     def observe(self, collar, stamp, accepted, x, P, motion=None) -> list[HerdSnapshot]:

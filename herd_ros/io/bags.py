@@ -90,6 +90,8 @@ class BagWriter:
         self._connections = {}
 
     def open(self) -> 'BagWriter':
+        """Open the bag for writing (crash-safe: the file committed as it is written);
+        returns self."""
         self._writer.open()
         if self.crash_safe:
             storage = self._writer.storage
@@ -105,6 +107,7 @@ class BagWriter:
         self.close()
 
     def close(self) -> None:
+        """Close the bag (writes its metadata)."""
         self._writer.close()
 
     @property

@@ -180,6 +180,7 @@ class AlignmentKernel:
 
     @property
     def size(self) -> int:
+        """Number of kernel bumps B."""
         return self.profile.size
 
     def columns(self, positions, velocities, rows) -> np.ndarray:
@@ -188,6 +189,7 @@ class AlignmentKernel:
                                  self.neighbourhood, self.nearest)
 
     def describe(self) -> str:
+        """One line: the bumps and the neighbourhood."""
         hood = (f'{self.nearest} nearest within {self.profile.radius:g} m'
                 if self.neighbourhood == 'nearest' else
                 f'neighbours within {self.profile.radius:g} m')

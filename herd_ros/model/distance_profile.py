@@ -44,6 +44,7 @@ class DistanceProfile:
 
     @property
     def size(self) -> int:
+        """Number of bumps B."""
         return len(self.centers)
 
     def features(self, distance) -> np.ndarray:

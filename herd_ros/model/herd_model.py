@@ -72,6 +72,7 @@ class AgentLaw:
 
     @property
     def parameter_names(self) -> list[str]:
+        """The names of θ_i's entries, in order."""
         return (['damping'] + [f'theta1[{j}]' for j in self.neighbors]
                 + [f'theta2[{j}]' for j in self.neighbors]
                 + [f'field_u[{k}]' for k in range(self.basis.size)]
@@ -155,6 +156,7 @@ class HerdModel(VelocityMemory):
 
     @property
     def n_agents(self) -> int:
+        """Number of agents N."""
         return len(self.agents)
 
     # -- the deterministic part of eq. 2 --------------------------------------------------

@@ -90,6 +90,7 @@ class ModelStructure:
         return 1 + middle + 2 * k + self.alignment_size
 
     def to_json(self) -> str:
+        """The structure as JSON (the latched /herd/model/structure message)."""
         body = asdict(self)
         body.update(agents=list(self.agents), field_grid=list(self.field_grid),
                     field_bounds=list(self.field_bounds))

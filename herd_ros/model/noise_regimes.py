@@ -179,6 +179,7 @@ class RegimeNoise:
                                for t in self.transition], dtype=np.int64)
 
     def draw(self, fraction: float = 1.0) -> np.ndarray:
+        """w of every agent for a fraction β of a model step (class docstring)."""
         beta = float(fraction)
         k = self.transition.shape[-1]
         probs = self.transition[np.arange(len(self.state)), self.state]     # (R, K)
@@ -201,6 +202,7 @@ class GaussianNoise:
         self.rng = np.random.default_rng(rng)
 
     def draw(self, fraction: float = 1.0) -> np.ndarray:
+        """w ~ N(0, β Q_i) of every agent for a fraction β of a model step."""
         xi = self.rng.standard_normal((len(self.factor), 2))
         return np.sqrt(float(fraction)) * np.einsum('rij,rj->ri', self.factor, xi)
 

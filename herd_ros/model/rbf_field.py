@@ -53,6 +53,7 @@ class FieldGrid:
 
     @property
     def spacing(self) -> tuple[float, float]:
+        """Cell width and height (m)."""
         xmin, xmax, ymin, ymax = self.bounds
         return (xmax - xmin) / self.nx, (ymax - ymin) / self.ny
 
@@ -107,6 +108,7 @@ class RbfBasis:
 
     @property
     def size(self) -> int:
+        """Number of centres K."""
         return len(self.centers)
 
     def features(self, points: np.ndarray) -> np.ndarray:

@@ -39,10 +39,12 @@ class AgentRegression:
 
     @property
     def n_samples(self) -> int:
+        """Number of samples (rows per axis)."""
         return len(self.y_x)
 
     @property
     def n_params(self) -> int:
+        """Number of parameters of θ_i."""
         return self.A_x.shape[1] + 2 * self.F.shape[1]
 
     def design(self) -> tuple[np.ndarray, np.ndarray]:

@@ -282,6 +282,7 @@ class SharedLawModel(VelocityMemory):
 
     @property
     def n_agents(self) -> int:
+        """Number of agents N."""
         return len(self.agents)
 
     def theta(self, i: int) -> np.ndarray:
@@ -322,6 +323,7 @@ class SharedLawModel(VelocityMemory):
                 + home_drift(self.meta, positions))
 
     def drift(self, positions, compiled: bool | None = None):
+        """Σ_j F(d_ij) e_ij (+ own profiles) + g_i(p_i) for every agent: (N, 2) -> (N, 2)."""
         return self.interaction(positions) + self.environment(positions, compiled)
 
     def next_velocity(self, velocity, positions,
@@ -332,6 +334,7 @@ class SharedLawModel(VelocityMemory):
                 + alignment_term(self.alignment, positions, velocity))
 
     def describe(self) -> str:
+        """A few lines: kind, agents, radius, profile terms, own profiles."""
         lines = [f'SharedLawModel({KIND}, {self.n_agents} agents, dt={self.dt:g} s, radius '
                  f'{self.profile.radius:g} m, {self.profile.size} profile terms)']
         if self.own_agents:

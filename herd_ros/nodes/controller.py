@@ -119,9 +119,11 @@ class Controller(Node):
             self.timer = self.create_timer(self.period, self.tick)
 
     def now_s(self) -> float:
+        """The node clock (s; simulated time with use_sim_time)."""
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_odom(self, k: int, msg: Odometry):
+        """Take robot ``k``'s odometry: position, yaw, world velocity, time."""
         pose, twist = msg.pose.pose, msg.twist.twist
         self.positions[k] = (pose.position.x, pose.position.y)
         self.yaw[k] = yaw_from_quaternion(pose.orientation)
@@ -130,6 +132,7 @@ class Controller(Node):
         self.odom_time[k] = self.now_s()
 
     def tick(self):
+        """One control period: the mode's velocities through the safety layer to Twists."""
         now = self.now_s()
         active = ~stale_mask(self.odom_time, now, self.odom_timeout_s)
         last = np.where(self.owned[:, None], self.last_command, self.velocity)
@@ -179,6 +182,7 @@ class Controller(Node):
         return forward, lateral, omega
 
     def publish_diagnostics(self, active, world):
+        """Per robot its counters and speed, and the mode's status, on /diagnostics."""
         statuses = []
         for k, robot in enumerate(self.all_robots):
             if not self.owned[k]:

@@ -119,6 +119,7 @@ class Estimator(Node):
             self.get_logger().warning(f'{exc}; starting afresh (it will be overwritten)')
 
     def write_checkpoint(self):
+        """Save the estimator's state (a failure is logged; learning goes on)."""
         try:
             self.core.save_checkpoint(self.cfg['checkpoint_path'])
         except OSError as exc:   # a full disk must not stop the learning
@@ -139,6 +140,7 @@ class Estimator(Node):
 
     # -- data ------------------------------------------------------------------------------
     def on_poses(self, msg: PoseArray):
+        """Learn from a /herd/poses snapshot and publish what changed."""
         n = len(self.core.agents)
         if len(msg.poses) != n:
             self._warn(f'/herd/poses has {len(msg.poses)} poses, expected {n} (agents): ignored')
@@ -181,6 +183,7 @@ class Estimator(Node):
             'estimator: herd clock', WARN, text, dict(self.counts))]))
 
     def publish_params(self, stamp=None):
+        """Publish θ and Q (agent × param, agent × 4)."""
         theta = self.core.theta
         self.params_pub.publish(matrix_message(theta, 'param'))
         self.noise_pub.publish(matrix_message(
@@ -188,6 +191,7 @@ class Estimator(Node):
 
 
     def publish_prediction(self):
+        """Publish the one-step prediction of the next tick."""
         pred = self.core.predict()
         if pred is None:
             return
@@ -201,6 +205,7 @@ class Estimator(Node):
 
     # -- status ----------------------------------------------------------------------------
     def publish_status(self):
+        """Publish the herd clock's and each agent's status on /diagnostics."""
         statuses = [diagnostic_status(
             'estimator: herd clock', WARN if self.clock_warning else OK,
             self.clock_warning or 'snapshots on the clock', dict(self.counts)),
@@ -216,11 +221,13 @@ class Estimator(Node):
         self.publish_markers()
 
     def publish_markers(self):
+        """Publish the field, centres and prediction as markers."""
         self.marker_pub.publish(model_markers(self.core, self.cfg['frame_id'],
                                               getattr(self, '_last_prediction', None)))
 
     # -- services --------------------------------------------------------------------------
     def on_save_model(self, request, response):
+        """Service ~/save_model: write the model file; the response names it."""
         try:
             path = self.core.save_model(self.cfg['model_out'], frame_id=self.cfg['frame_id'])
             response.success, response.message = True, str(Path(path).resolve())
@@ -229,6 +236,7 @@ class Estimator(Node):
         return response
 
     def on_reset(self, request, response):
+        """Service ~/reset: θ and P back to their start, counters zero."""
         self.core.reset()
         self.get_logger().info('estimator reset: θ = θ₀, P = P₀, counters zero')
         response.success, response.message = True, 'reset'

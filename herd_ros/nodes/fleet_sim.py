@@ -66,6 +66,7 @@ class FleetSim(Node):
         setattr(self.cfg, name, float(value))          # read at every step
 
     def now_s(self) -> float:
+        """The node clock (s; simulated time with use_sim_time)."""
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_cmd(self, k: int, msg: Twist):
@@ -76,6 +77,7 @@ class FleetSim(Node):
         self._log_fleet()
 
     def step(self):
+        """One step: integrate the fleet to now and publish odometry, poses and fixes."""
         now = self.now_s()
         self.fleet.integrate_to(now)
         self._log_fleet()
@@ -122,6 +124,7 @@ class FleetSim(Node):
             self.publish_diagnostics(now)
 
     def publish_fixes(self, stamp, state):
+        """Publish each robot's simulated GPS fix (with the configured noise)."""
         cfg = self.cfg
         noise = self.rng.normal(0.0, cfg.gps_noise_std, size=state.positions.shape) \
             if cfg.gps_noise_std > 0 else 0.0
@@ -141,6 +144,7 @@ class FleetSim(Node):
             self.fix_pubs[k].publish(fix)
 
     def publish_diagnostics(self, now: float):
+        """Per robot its collisions, fence contacts and stale commands on /diagnostics."""
         cfg, fleet = self.cfg, self.fleet
         stale = fleet.stale(now)
         statuses = []

@@ -62,6 +62,7 @@ class FlockingPolicy:
 
     @classmethod
     def from_node(cls, node) -> 'FlockingPolicy':
+        """The policy with its parameters declared on ``node``."""
         return cls(node, declare_parameters(node, FLOCKING_DEFAULTS))
 
     # -- target ---------------------------------------------------------------------------
@@ -72,14 +73,17 @@ class FlockingPolicy:
                            f'(γ {self.params.gamma_mode}, {len(self.obstacles)} obstacles)')
 
     def on_point(self, msg: PointStamped):
+        """Take a target fix from a PointStamped."""
         self._take(stamp_to_seconds(msg.header.stamp), (msg.point.x, msg.point.y))
 
     def on_poses(self, msg: PoseArray):
+        """Take the centroid of the valid poses of /herd/poses as the target."""
         xy = np.array([(p.position.x, p.position.y) for p in msg.poses], dtype=float)
         self._take(stamp_to_seconds(msg.header.stamp), centroid_of_valid(xy))
 
     # -- the policy -----------------------------------------------------------------------
     def command(self, state) -> np.ndarray:
+        """World velocities (R, 2): the flocking law integrated over one period."""
         out = np.full_like(state.positions, np.nan)
         present = state.active & np.isfinite(state.positions).all(axis=1) \
             & np.isfinite(state.last_command).all(axis=1)

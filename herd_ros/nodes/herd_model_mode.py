@@ -67,6 +67,7 @@ class HerdModelPolicy:
 
     @classmethod
     def from_node(cls, node) :
+        """The policy with its parameters declared on ``node``."""
         return cls(node, declare_parameters(node, HERD_MODEL_DEFAULTS))
 
     # -- model sources ------------------------------------------------------------------
@@ -121,6 +122,7 @@ class HerdModelPolicy:
         return given
 
     def set_model(self, model):
+        """Drive the robots by ``model`` from now on (one noise generator for the node's life)."""
         # one noise generator for the node's life: a live model is replaced every snapshot,
         # and re-seeding each time would repeat the same draw (a constant push, not noise)
         if not hasattr(self, 'rng'):
@@ -139,6 +141,8 @@ class HerdModelPolicy:
         self.refused_since_adopted = 0
 
     def on_params(self, msg: Float64MultiArray):
+        """Take a model from the estimator's /herd/model/params, read by the latched
+        /herd/model/structure."""
         dims = msg.layout.dim
         try:
             if len(dims) != 2:

@@ -78,16 +78,19 @@ class HerdSim(Node):
         self.publish_poses(self.now_s())
 
     def now_s(self) -> float:
+        """The simulated time (with publish_clock) or the node clock (s)."""
         if self.clock_pub is not None:
             return self.sim_time
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_robots(self, msg: PoseArray):
+        """Take the robots' positions (finite ones) as the dogs."""
         xy = np.array([(q.position.x, q.position.y) for q in msg.poses], dtype=float)
         xy = xy.reshape(-1, 2)
         self.dogs = xy[np.isfinite(xy).all(axis=1)][None]
 
     def on_clock_tick(self):
+        """Advance simulated time by one clock step, publish /clock, step the animals when due."""
         self.sim_time += self.clock_step
         msg = ClockMsg()
         msg.clock = seconds_to_stamp(self.sim_time)
@@ -97,9 +100,11 @@ class HerdSim(Node):
             self.step()
 
     def on_step_timer(self):
+        """Step the animals (node-clock timer)."""
         self.step()
 
     def step(self):
+        """One step of the sheep; publish their poses (and diagnostics when due)."""
         self.P, self.H = sheep_step(self.P, self.H, self.dogs, self.sheep, self.rng)
         self.steps += 1
         now = self.now_s()
@@ -109,6 +114,7 @@ class HerdSim(Node):
             self.publish_diagnostics()
 
     def publish_poses(self, t: float):
+        """Publish the animals on /herd/poses stamped ``t``."""
         msg = PoseArray()
         msg.header.frame_id = self.frame_id
         msg.header.stamp = seconds_to_stamp(t)
@@ -120,6 +126,7 @@ class HerdSim(Node):
         self.poses_pub.publish(msg)
 
     def publish_diagnostics(self):
+        """Publish the herd's centre, spread and alarmed animals on /diagnostics."""
         P = self.P[0]
         centre = P.mean(axis=0)
         d = self.dogs[0]

@@ -52,9 +52,11 @@ class HerdingPolicy:
 
     @classmethod
     def from_node(cls, node) -> 'HerdingPolicy':
+        """The policy with its parameters declared on ``node``."""
         return cls(node, declare_parameters(node, HERDING_DEFAULTS))
 
     def on_poses(self, msg: PoseArray):
+        """Take the animals' positions (finite ones) from the herd topic."""
         xy = np.array([(q.position.x, q.position.y) for q in msg.poses], dtype=float)
         xy = xy.reshape(-1, 2)
         self.animals = xy[np.isfinite(xy).all(axis=1)]
@@ -62,6 +64,7 @@ class HerdingPolicy:
         self.updates += 1
 
     def command(self, state) -> np.ndarray:
+        """World velocities (R, 2) of Strömbom's shepherd; zero once the herd is home."""
         out = np.full_like(state.positions, np.nan)
         present = state.active & np.isfinite(state.positions).all(axis=1)
         P = self.animals
@@ -90,6 +93,7 @@ class HerdingPolicy:
         return out
 
     def publish_markers(self, P: np.ndarray):
+        """Publish the goal, the herd's centre and each robot's target on /herding/markers."""
         stamp = self.node.get_clock().now().to_msg()
 
         def marker(mid, kind, xy, scale, rgba, z=0.0):

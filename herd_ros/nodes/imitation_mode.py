@@ -62,9 +62,11 @@ class ImitationPolicyMode:
 
     @classmethod
     def from_node(cls, node) -> 'ImitationPolicyMode':
+        """The policy, read from the node's parameters."""
         return cls(node)
 
     def command(self, state) -> np.ndarray:
+        """World velocities (R, 2) of the learned swarm policy, stepped at the model's dt."""
         present = state.active & np.isfinite(state.positions).all(axis=1) \
             & np.isfinite(state.last_command).all(axis=1)
         # a step is due when a full model.dt has passed (half a tick of slack for jitter)

@@ -119,6 +119,7 @@ class Record(Node):
         self.discover()
 
     def discover(self):
+        """Subscribe to the topics that have appeared (with their types and QoS)."""
         pending = [t for t in self.cfg.topics if t not in self.subs]
         if not pending:
             return
@@ -146,6 +147,7 @@ class Record(Node):
                                    f'{qos.durability.name.lower()}')
 
     def on_message(self, topic: str, data: bytes):
+        """Write one serialized message to the bag, stamped with the node clock."""
         t_ns = max(self.get_clock().now().nanoseconds, self.last_ns)
         self.last_ns = t_ns
         self.bag.write_raw(topic, t_ns, data)
@@ -155,15 +157,18 @@ class Record(Node):
             self.flush()
 
     def flush(self):
+        """Flush what was written since the last flush."""
         if self.unflushed:
             self.bag.flush()
             self.unflushed = 0
 
     def report(self):
+        """Log how many messages were recorded, per topic."""
         self.get_logger().info(f'recorded {sum(self.counts.values())} messages: ' + ', '.join(
             f'{t} {n}' for t, n in self.counts.items()))
 
     def on_shutdown(self):
+        """Close the bag and say so."""
         self.bag.close()
         # printed, not logged: the context may already be shut down (no /rosout)
         print(f'record: closed {self.cfg.bag}: {sum(self.counts.values())} messages',

@@ -208,6 +208,7 @@ class Replay(Node):
 
     # -- shutdown ----------------------------------------------------------------------
     def on_shutdown(self):
+        """Stop the player thread."""
         self._stop.set()
         self._player.join(timeout=5.0)
 

@@ -100,6 +100,7 @@ class FleetSimulator:
             self.advance(cmd, stale, h)
 
     def advance(self, cmd, stale, h):
+        """Advance the robots by ``h`` s under the commands ``cmd`` (stale ones stopped)."""
         cfg, old = self.cfg, self.state
         if cfg.kinematics == 'holonomic':
             new = kin.step_holonomic(old, cmd[:, :2], cmd[:, 2], h, cfg.max_speed, cfg.max_accel,

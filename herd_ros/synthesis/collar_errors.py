@@ -165,6 +165,7 @@ class CollarErrorModel:
 
     @property
     def vertical_std(self) -> float:
+        """Total vertical error std (m): Gauss-Markov and white parts."""
         return float(np.hypot(self.vertical_gm_std, self.vertical_white_std))
 
 

@@ -156,6 +156,7 @@ class Paddock:
 
     @property
     def path(self) -> Path:
+        """The fence as a closed matplotlib Path."""
         return Path(np.vstack([self.fence, self.fence[:1]]), closed=True)
 
     def contains(self, points) -> np.ndarray:
