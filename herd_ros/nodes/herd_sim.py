@@ -10,10 +10,14 @@ step's time) after every step, and ``/diagnostics`` (herd centre, spread, alarme
 With ``publish_clock`` the node drives simulated time: a wall-clock timer advances it by
 ``clock_step_s`` per tick, ``rate`` times faster than real time, publishes ``/clock`` and
 steps the animals each ``step_s`` of it; the rest of the graph runs with
-``use_sim_time: true`` (``launch/herding.launch.py``, ``herd-ros demo --herding``). Without
-it the animals step on a timer of the node clock.
+``use_sim_time: true`` (``launch/herding.launch.py``, ``herd-ros demo --herding``). The
+clock waits while the robots' newest poses lag it by more than ``clock_max_lead_s``, so a
+busy machine slows the simulation instead of changing it. Without ``publish_clock`` the
+animals step on a timer of the node clock.
 """
 from __future__ import annotations
+
+import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
@@ -24,9 +28,14 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from herd_ros.herding.strombom import SheepParams, sheep_step
 from herd_ros.nodes.ros_common import (OK, declare_parameters, describe_remaining_parameters,
                                        diagnostic_array, diagnostic_status, exit_process,
-                                       run_node, seconds_to_stamp, wall_timer)
+                                       run_node, seconds_to_stamp, stamp_to_seconds,
+                                       wall_timer)
 from herd_ros.params import ParameterError
 from herd_ros.params.herd_sim import PARAMS as DEFAULTS
+
+
+#: with publish_clock, how long (s of wall time) the clock waits for the robots' first poses
+ROBOTS_WAIT_S = 10.0
 
 
 def animal_names(n: int) -> list[str]:
@@ -53,6 +62,9 @@ class HerdSim(Node):
         a = self.rng.uniform(0.0, 2 * np.pi, size=n)
         self.H = np.column_stack([np.cos(a), np.sin(a)])[None]
         self.dogs = np.zeros((1, 0, 2))
+        self.robots_time = np.nan          # stamp of the newest /fleet/poses
+        self.started = time.monotonic()
+        self.waits = 0                     # clock ticks held back for the robots
         self.step_s, self.frame_id = p['step_s'], p['frame_id']
         self.steps = 0
         self.poses_pub = self.create_publisher(PoseArray, '/herd/poses', 10)
@@ -65,6 +77,7 @@ class HerdSim(Node):
             self.clock_pub = self.create_publisher(ClockMsg, '/clock', 10)
             self.sim_time = 0.0
             self.clock_step = p['clock_step_s']
+            self.max_lead = p['clock_max_lead_s'] + p['clock_step_s']
             self.next_step = self.step_s
             wall_timer(self, self.clock_step / p['rate'], self.on_clock_tick)
         else:
@@ -88,9 +101,20 @@ class HerdSim(Node):
         xy = np.array([(q.position.x, q.position.y) for q in msg.poses], dtype=float)
         xy = xy.reshape(-1, 2)
         self.dogs = xy[np.isfinite(xy).all(axis=1)][None]
+        self.robots_time = stamp_to_seconds(msg.header.stamp)
 
     def on_clock_tick(self):
-        """Advance simulated time by one clock step, publish /clock, step the animals when due."""
+        """Advance simulated time by one clock step, publish /clock, step the animals when
+        due; wait while the robots' poses lag by more than ``clock_max_lead_s``."""
+        # before the first robot pose, the clock waits at max_lead for up to
+        # ROBOTS_WAIT_S of wall time (the robots' simulator needs /clock to start), then runs
+        # on alone (a graph without robots)
+        behind = (self.sim_time - self.robots_time if np.isfinite(self.robots_time)
+                  else self.sim_time if time.monotonic() - self.started < ROBOTS_WAIT_S
+                  else -np.inf)
+        if behind > self.max_lead + 1e-9:
+            self.waits += 1
+            return
         self.sim_time += self.clock_step
         msg = ClockMsg()
         msg.clock = seconds_to_stamp(self.sim_time)
@@ -134,7 +158,8 @@ class HerdSim(Node):
                       .any(axis=1).sum()) if len(d) else 0
         self.diag_pub.publish(diagnostic_array(self, [diagnostic_status(
             'herd_sim', OK, f'{len(P)} animals, {len(d)} robots',
-            {'steps': self.steps, 'centre_x': float(centre[0]), 'centre_y': float(centre[1]),
+            {'steps': self.steps, 'clock_waits': self.waits,
+             'centre_x': float(centre[0]), 'centre_y': float(centre[1]),
              'spread_m': float(np.sqrt(((P - centre) ** 2).sum(-1)).mean()),
              'alarmed': alarmed})]))
 

@@ -93,6 +93,16 @@ PARAMS = {
         0.05,
         'with publish_clock: /clock tick (s of simulated time)',
         range=(1e-04, 10.0)),
+    'clock_max_lead_s': Param(
+        0.5,
+        'with publish_clock: how far (s) the clock may run ahead of the robots\' poses',
+        range=(0.0, 3600.0),
+        doc=('\n'
+             'With publish_clock: the clock waits while the newest robot poses '
+             '(/fleet/poses stamps)\n'
+             'lag it by more than this (s of simulated time), so a busy machine '
+             'slows the simulation\n'
+             'instead of leaving the robots behind the animals (0 = lockstep).')),
     'diagnostics_period_s': Param(
         1.0,
         'period (s) of /diagnostics',
