@@ -136,13 +136,8 @@ def _launch_env(colcon_install, ros_env):
     return env
 
 
-@pytest.mark.slow
-def test_launch_file_runs_the_graph_and_stops_without_escalation(colcon_install, tmp_path,
-                                                                  ros_env):
-    """Issue "a ROS user's first hour", acceptance 2: the colcon-installed launch file, run by
-    launch's own LaunchService, brings data onto /herd/poses, /herd/model/params and
-    /fleet/poses; one SIGINT to the launch process alone (launch, non-interactive, then asks
-    each node with one SIGINT) ends everything without `escalating to 'SIGTERM'`."""
+def _launch_env_or_skip(colcon_install, ros_env):
+    """:func:`_launch_env`, or the test skipped where launch/launch_ros do not import."""
     env = _launch_env(colcon_install, ros_env)
     probe = subprocess.run([sys.executable, '-c', 'import launch, launch_ros.actions'],
                            env=env, capture_output=True, text=True)
@@ -151,6 +146,17 @@ def test_launch_file_runs_the_graph_and_stops_without_escalation(colcon_install,
                   'or a source install has them): ' + probe.stderr.strip().splitlines()[-1])
         print(reason)
         pytest.skip(reason)
+    return env
+
+
+@pytest.mark.slow
+def test_launch_file_runs_the_graph_and_stops_without_escalation(colcon_install, tmp_path,
+                                                                  ros_env):
+    """Issue "a ROS user's first hour", acceptance 2: the colcon-installed launch file, run by
+    launch's own LaunchService, brings data onto /herd/poses, /herd/model/params and
+    /fleet/poses; one SIGINT to the launch process alone (launch, non-interactive, then asks
+    each node with one SIGINT) ends everything without `escalating to 'SIGTERM'`."""
+    env = _launch_env_or_skip(colcon_install, ros_env)
     from geometry_msgs.msg import PoseArray
     from std_msgs.msg import Float64MultiArray
 
@@ -190,14 +196,7 @@ def test_herding_launch_file_brings_the_herd_into_the_goal(colcon_install, tmp_p
     """Issue 27, acceptance 3: ``ros2 launch herd_ros herding.launch.py`` (the colcon-installed
     file, run by launch's own LaunchService) ends with the herd inside the goal, checked from
     the poses on /herd/poses; one SIGINT ends the three nodes."""
-    env = _launch_env(colcon_install, ros_env)
-    probe = subprocess.run([sys.executable, '-c', 'import launch, launch_ros.actions'],
-                           env=env, capture_output=True, text=True)
-    if probe.returncode != 0:
-        reason = ('launch/launch_ros are not importable here (not on PyPI; a full ROS install '
-                  'or a source install has them): ' + probe.stderr.strip().splitlines()[-1])
-        print(reason)
-        pytest.skip(reason)
+    env = _launch_env_or_skip(colcon_install, ros_env)
     import numpy as np
     from geometry_msgs.msg import PoseArray
 

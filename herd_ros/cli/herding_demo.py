@@ -28,6 +28,9 @@ class HerdingRecorder:
 
     def __init__(self, node, n_robots: int):
         from geometry_msgs.msg import PoseArray
+
+        from herd_ros.nodes.ros_common import pose_array_xy
+        self._xy = pose_array_xy
         self.lock = threading.Lock()
         self.times, self.herd, self.robots = [], [], []
         self.latest = np.full((n_robots, 2), np.nan)
@@ -41,11 +44,6 @@ class HerdingRecorder:
         """Count one /herding/markers message."""
         with self.lock:
             self.markers += 1
-
-    @staticmethod
-    def _xy(msg) -> np.ndarray:
-        return np.array([[p.position.x, p.position.y] for p in msg.poses],
-                        dtype=float).reshape(-1, 2)
 
     def on_herd(self, msg):
         """Keep a /herd/poses snapshot with the robots' latest positions."""
@@ -79,6 +77,7 @@ def run_herding_demo(out_dir, n_animals: int = 14, herders: int = 1, rate: float
     from herd_ros.nodes.controller import Controller
     from herd_ros.nodes.fleet_sim import FleetSim
     from herd_ros.nodes.herd_sim import HerdSim, animal_names
+    from herd_ros.cli.live_demo import _spin
     from herd_ros.trajectory import HerdTrajectory, write_trajectory_csv
 
     out = Path(out_dir).resolve()
@@ -184,11 +183,3 @@ def _figure(path, herd, robots, goal, radius, summary):
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def _spin(executor):
-    from rclpy.executors import ExternalShutdownException
-    try:
-        executor.spin()
-    except (ExternalShutdownException, KeyboardInterrupt):
-        pass

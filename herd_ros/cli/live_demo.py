@@ -44,7 +44,8 @@ class DemoRecorder:
 
     @staticmethod
     def _xy(msg) -> np.ndarray:
-        return np.array([[p.position.x, p.position.y] for p in msg.poses], dtype=float)
+        from herd_ros.nodes.ros_common import pose_array_xy
+        return pose_array_xy(msg)
 
     def on_herd(self, msg):
         """Keep a /herd/poses snapshot with the robots' latest positions."""

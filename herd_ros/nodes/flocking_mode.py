@@ -19,7 +19,7 @@ from herd_ros.control.flocking_command import (TargetEstimate, centroid_of_valid
 from herd_ros.errors import HerdInputError
 from herd_ros.flocking.olfati_saber import CircularObstacles, FlockingParams
 from herd_ros.nodes.ros_common import declare_parameters
-from herd_ros.nodes.ros_common import ParameterError, stamp_to_seconds
+from herd_ros.nodes.ros_common import ParameterError, pose_array_xy, stamp_to_seconds
 from herd_ros.params.controller import FLOCKING as FLOCKING_DEFAULTS
 
 TARGET_SOURCES = {'herd_centroid': '/herd/poses', 'point': ''}
@@ -78,8 +78,7 @@ class FlockingPolicy:
 
     def on_poses(self, msg: PoseArray):
         """Take the centroid of the valid poses of /herd/poses as the target."""
-        xy = np.array([(p.position.x, p.position.y) for p in msg.poses], dtype=float)
-        self._take(stamp_to_seconds(msg.header.stamp), centroid_of_valid(xy))
+        self._take(stamp_to_seconds(msg.header.stamp), centroid_of_valid(pose_array_xy(msg)))
 
     # -- the policy -----------------------------------------------------------------------
     def command(self, state) -> np.ndarray:

@@ -28,6 +28,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from herd_ros.herding.strombom import SheepParams, sheep_step
 from herd_ros.nodes.ros_common import (OK, declare_parameters, describe_remaining_parameters,
                                        diagnostic_array, diagnostic_status, exit_process,
+                                       pose_array_xy,
                                        run_node, seconds_to_stamp, stamp_to_seconds,
                                        wall_timer)
 from herd_ros.params import ParameterError
@@ -98,9 +99,7 @@ class HerdSim(Node):
 
     def on_robots(self, msg: PoseArray):
         """Take the robots' positions (finite ones) as the dogs."""
-        xy = np.array([(q.position.x, q.position.y) for q in msg.poses], dtype=float)
-        xy = xy.reshape(-1, 2)
-        self.dogs = xy[np.isfinite(xy).all(axis=1)][None]
+        self.dogs = pose_array_xy(msg, finite=True)[None]
         self.robots_time = stamp_to_seconds(msg.header.stamp)
 
     def on_clock_tick(self):

@@ -19,7 +19,8 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from herd_ros.herding.strombom import (SheepParams, ShepherdParams, herd_in_goal,
                                        herder_velocities, strombom_targets)
-from herd_ros.nodes.ros_common import ParameterError, declare_parameters, stamp_to_seconds
+from herd_ros.nodes.ros_common import (ParameterError, declare_parameters, pose_array_xy,
+                                       stamp_to_seconds)
 from herd_ros.params.controller import HERDING as HERDING_DEFAULTS
 
 
@@ -57,9 +58,7 @@ class HerdingPolicy:
 
     def on_poses(self, msg: PoseArray):
         """Take the animals' positions (finite ones) from the herd topic."""
-        xy = np.array([(q.position.x, q.position.y) for q in msg.poses], dtype=float)
-        xy = xy.reshape(-1, 2)
-        self.animals = xy[np.isfinite(xy).all(axis=1)]
+        self.animals = pose_array_xy(msg, finite=True)
         self.animals_time = stamp_to_seconds(msg.header.stamp)
         self.updates += 1
 

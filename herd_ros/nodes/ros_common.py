@@ -193,6 +193,13 @@ def wall_timer(node, period_s: float, callback):
     return node.create_timer(period_s, callback, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
 
+def pose_array_xy(msg, finite: bool = False) -> np.ndarray:
+    """(x, y) of every pose of a geometry_msgs/PoseArray as a (K, 2) array; with ``finite``
+    only the poses with finite coordinates (missing agents are NaN)."""
+    xy = np.array([(q.position.x, q.position.y) for q in msg.poses], dtype=float).reshape(-1, 2)
+    return xy[np.isfinite(xy).all(axis=1)] if finite else xy
+
+
 def stamp_to_seconds(stamp) -> float:
     """builtin_interfaces/Time -> float seconds."""
     return float(stamp.sec) + 1e-9 * float(stamp.nanosec)

@@ -81,21 +81,26 @@ def segment_starts(n_steps: int, segment_steps: int, segments: int) -> list[int]
     return sorted({int(round(x)) for x in np.linspace(0, last, k)})
 
 
+def _data_paces(positions, starts, length, dt):
+    """The data's pace (S, N) over the segments of one run."""
+    return np.array([shape_and_pace(positions[s0:s0 + length], dt)['pace'] for s0 in starts])
+
+
 def _segment_paces(model, positions, starts, length, seed):
-    """(data pace (S, N), simulated pace (S, N)) over the segments of one run."""
+    """The simulated pace (S, N) over the segments of one run, each run freely from its
+    segment's start."""
     from herd_ros.simulation.herd_simulator import simulate_from
     from herd_ros.trajectory import HerdTrajectory
-    data, sims = [], []
+    sims = []
     times = np.arange(len(positions)) * model.dt
     for k, s0 in enumerate(starts):
         seg = positions[s0:s0 + length]
         run = HerdTrajectory(times[s0:s0 + length], list(model.agents), seg)
         sim = simulate_from(model, run, seed=None if seed is None else seed * 1009 + k)
-        data.append(shape_and_pace(seg, model.dt)['pace'])
         # the run's segment may start later (the first snapshot with every agent): the
         # simulation covers the segment's end
         sims.append(shape_and_pace(sim.positions, model.dt)['pace'])
-    return np.array(data), np.array(sims)
+    return np.array(sims)
 
 
 def with_noise_scale(model, scale):
@@ -135,26 +140,24 @@ def calibrate_noise_scale(model, positions, *, iterations: int = ITERATIONS,
                 'iterations': 0, 'segments': 0, 'reason': ['no run long enough'] * n}
 
     def paces(s):
-        """data pace (N,), simulated pace (N,) (mean over seeds and segments), and the
-        std over seeds of the log of each seed's simulated pace (N,)."""
+        """The simulated pace (N,) (mean over seeds and segments), and the std over seeds
+        of the log of each seed's simulated pace (N,)."""
         m = with_noise_scale(model, s)
-        d_all, per_seed = [], []
+        per_seed = []
         for seed in range(seeds):
-            s_all = []
-            for p, starts, length in plan:
-                d, si = _segment_paces(m, p, starts, length, seed)
-                if seed == 0:
-                    d_all.append(d)
-                s_all.append(si)
+            s_all = [_segment_paces(m, p, starts, length, seed) for p, starts, length in plan]
             with _quiet():
                 per_seed.append(np.nanmean(np.concatenate(s_all), axis=0))
         per_seed = np.array(per_seed)
         with _quiet(), np.errstate(divide='ignore', invalid='ignore'):
-            return (np.nanmean(np.concatenate(d_all), axis=0), np.nanmean(per_seed, axis=0),
+            return (np.nanmean(per_seed, axis=0),
                     np.nanstd(np.log(per_seed), axis=0, ddof=1) if seeds > 1
                     else np.zeros(n))
 
-    data, sim, spread = paces(scale)
+    with _quiet():
+        data = np.nanmean(np.concatenate([_data_paces(p, starts, length, model.dt)
+                                          for p, starts, length in plan]), axis=0)
+    sim, spread = paces(scale)
     first = sim.copy()
     lo, hi = SCALE_RANGE
     ok = np.isfinite(data) & (data > 0) & np.isfinite(sim) & (sim > 0)
@@ -185,7 +188,7 @@ def calibrate_noise_scale(model, positions, *, iterations: int = ITERATIONS,
             break
         previous, prev_sim = scale, sim
         scale = new
-        _, sim, _ = paces(scale)
+        sim, _ = paces(scale)
         done += 1
         # the secant slope of log pace against log s (C2): how strongly this animal's pace
         # answers its noise (1 without a pull; less where a pull bounds its range)
@@ -200,7 +203,7 @@ def calibrate_noise_scale(model, positions, *, iterations: int = ITERATIONS,
         active &= ~deaf & np.isfinite(sim) & (sim > 0)
         gamma = np.where(moved & ~deaf, np.clip(slope, MIN_ELASTICITY, 1.5), gamma)
         if deaf.any():
-            _, sim, _ = paces(scale)
+            sim, _ = paces(scale)
     for i in np.flatnonzero(active & (scale <= lo) & (sim > 1.1 * data)):
         reason[i] = 'its drift alone outpaces it'
     return {'scale': scale, 'data_pace': data, 'sim_pace': sim, 'uncalibrated_pace': first,
