@@ -4,7 +4,7 @@ import pandas as pd
 
 from herd_ros.ingest.herd_clock import StateTimeline
 from herd_ros.ingest.tracking_score import (collar_track_distances, next_fix_distances,
-                                            summarise)
+                                            paired, summarise)
 
 
 def fixes():
@@ -36,3 +36,14 @@ def test_a_collar_track_predicts_its_last_state_to_the_fix():
     d_t, d_r = collar_track_distances(fixes(), {'a': tl})
     np.testing.assert_allclose(d_t, [0.0, 0.0, 1.0], atol=1e-5)
     np.testing.assert_allclose(d_r, [10.0, 10.0, 11.0])
+
+
+def test_the_paired_comparison_counts_who_is_closer_by_hand():
+    # closer, farther, closer, a tie within 1 mm, a NaN pair left out
+    p = paired([1.0, 3.0, 0.5, 2.0005, np.nan], [2.0, 2.0, 1.0, 2.0, 1.0])
+    assert p['n'] == 4 and p['ties'] == 0.25
+    assert abs(p['closer'] - 2 / 3) < 1e-12
+    lo, hi = p['closer_ci']
+    assert lo < 2 / 3 < hi and lo > 0.0 and hi < 1.0
+    # median of (−1, 1, −0.5, 0.0005)
+    assert abs(p['median_difference'] - (-0.5 + 0.0005) / 2) < 1e-12

@@ -19,7 +19,7 @@ from herd_ros.simulation.prediction import damping_only_fit, k_step_rms, one_ste
 from herd_ros.simulation.statistics import herd_statistics, relative_differences
 from herd_ros.trajectory import HerdTrajectory
 
-Z95 = 1.959963984540054
+from herd_ros.report.intervals import Z95  # noqa: E402
 
 
 def force_curves(fit: HerdFit, runs: list[HerdTrajectory], n_points: int = 100) -> dict:

@@ -14,11 +14,11 @@ mean path length. Plain numpy; no ROS.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from herd_ros.report.intervals import Z95, wilson_interval  # noqa: F401 (re-exported)
 from herd_ros.herding.strombom import (SheepParams, ShepherdParams, herd_in_goal, move_herders,
                                        sheep_step, strombom_targets)
 
@@ -26,22 +26,6 @@ FIELD = 150.0
 GOAL = (20.0, 20.0)
 GOAL_RADIUS = 15.0
 START_BOX = 40.0
-Z95 = 1.959963984540054
-
-
-def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
-    """Wilson's score interval of a binomial proportion (95 % by default)."""
-    if n <= 0:
-        return (0.0, 1.0)
-    p = successes / n
-    denom = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    # at 0 and n the bounds are exactly 0 and 1 (not a rounding away from them)
-    return (0.0 if successes == 0 else max(0.0, centre - half),
-            1.0 if successes == n else min(1.0, centre + half))
-
-
 FAMILIES = ('strombom', 'herd-law')
 
 

@@ -16,7 +16,8 @@ the fix, what its odometry said) and the herd clock's last pose before the fix (
 fixes: those not part of an injected burst ("genuine": a burst fix is not where the animal
 is); "all" scores every fix. Also the distance to the recording itself ("dense"): at every
 recorded position of an active collar, the clock's last pose before it against the last
-kept raw fix before it.
+kept raw fix before it. Fix by fix (:func:`paired`): the share of fixes at which the track
+is the closer, with its Wilson interval, and the median paired difference.
 
     .venv/bin/python test/bench/bench_tracking.py [--seeds N] [--herds baboons,steers,cows]
         [--motion-model auto|fit|fixed] [--json FILE]
@@ -36,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 from herd_ros.ingest.geodesy import geodetic_to_enu  # noqa: E402
 from herd_ros.ingest.pipeline import load_fixes, planar_fixes, trajectory_from_fixes  # noqa
 from herd_ros.ingest.tracking_score import (STATS, collar_track_distances,  # noqa: E402
-                                            next_fix_distances, summarise)
+                                            next_fix_distances, paired, summarise)
 from herd_ros.synthesis.collar_errors import (CollarErrorModel,  # noqa: E402
                                               duty_cycle_recorded_fixes,
                                               simulate_collar_fixes)
@@ -157,8 +158,9 @@ def run(herds, seeds, dense=True, **ingest):
         out = {w: {} for w in TRACKS}
         for (w, k), v in acc.items():
             if v[0]:
-                out[w][k] = {'track': summarise(np.concatenate(v[0])),
-                             'last_raw_fix': summarise(np.concatenate(v[1]))}
+                d_t, d_r = np.concatenate(v[0]), np.concatenate(v[1])
+                out[w][k] = {'track': summarise(d_t), 'last_raw_fix': summarise(d_r),
+                             'paired': paired(d_t, d_r)}
         out['ingest_s'] = secs / seeds
         out['dt'] = float(traj.meta['dt'])
         results[herd] = out
@@ -192,6 +194,12 @@ def main(argv=None):
                 label = f'{herd} / {w}' + (f' ({r["dt"]:g} s)' if w == 'clock' else '')
                 for who in ('track', 'last_raw_fix'):
                     print(f'{label + " / " + key:34s} {who:14s} {fmt(r[w][key][who])}')
+        pg = r['collar']['genuine']['paired']
+        print(f'{herd}: fix by fix (genuine fixes), the collar track is the closer at '
+              f'{100 * pg["closer"]:.1f} % [{100 * pg["closer_ci"][0]:.1f}, '
+              f'{100 * pg["closer_ci"][1]:.1f}] of the fixes where they differ '
+              f'({100 * pg["ties"]:.0f} % ties within 1 mm); median d_track - d_raw '
+              f'{pg["median_difference"]:+.3f} m')
         ok = wins(r['collar']['genuine'])
         lost = [s for s, v in ok.items() if not v]
         print(f'{herd}: collar track vs last raw fix (genuine fixes): '
