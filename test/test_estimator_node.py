@@ -63,12 +63,20 @@ class Feeder:
                                  QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                             durability=DurabilityPolicy.TRANSIENT_LOCAL))
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 50)
+        self.regimes = None        # latched as well
+        node.create_subscription(Float64MultiArray, '/herd/model/noise_regimes',
+                                 self._on_regimes,
+                                 QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                            durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self.save = node.create_client(Trigger, '/estimator/save_model')
         self.executor = rclpy.executors.SingleThreadedExecutor(context=node.context)
         self.executor.add_node(node)
 
     def _on_params(self, msg):
         self.params = msg
+
+    def _on_regimes(self, msg):
+        self.regimes = msg
 
     def _on_structure(self, msg):
         self.structure = ModelStructure.from_json(msg.data)
@@ -178,9 +186,21 @@ def test_node_converges_to_the_truth(ros, herd, console_script, tmp_path):
         assert theta.shape == (len(run.agents), st.n_params)
         result = feeder.call_save()
         assert result.success, result.message
+        # the stop-and-go noise, refitted every regime_refit_every updates: the truth's noise
+        # is Gaussian, so one regime, whose covariance is the truth's Q_i within 15 %
+        assert feeder.spin(5.0, lambda: feeder.regimes is not None)
+        dims = feeder.regimes.layout.dim
+        assert [d.label for d in dims] == ['agent', 'regime', 'q4_transition']
+        assert [d.size for d in dims] == [len(run.agents), 1, 5]
+        rows = np.array(feeder.regimes.data).reshape(len(run.agents), 5)
+        np.testing.assert_allclose(rows[:, 4], 1.0)
+        for i, a in enumerate(run.agents):
+            q = truth.laws[a].noise_cov
+            assert abs(rows[i, 0] + rows[i, 3] - np.trace(q)) < 0.15 * np.trace(q), (a, rows[i])
     finally:
         out, err = stop(proc)
     assert 'Traceback' not in err, err
+    assert 'noise regimes: 1 by BIC' in err
     saved = load_model(tmp_path / 'model.yaml')
     for i, a in enumerate(run.agents):
         true = truth.laws[a].damping

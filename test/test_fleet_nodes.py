@@ -271,6 +271,49 @@ def test_live_model_from_the_estimator_topic(graph):
     assert cmds['r2'][-1][1].linear.x > 0.05
 
 
+def test_live_noise_regimes_from_the_estimator_topic(graph):
+    # the estimator's stop-and-go noise (/herd/model/noise_regimes, latched) reaches the
+    # robots' law: the controller says which noise its robots draw
+    g, ear = graph
+    diags = ear.record(DiagnosticArray, '/diagnostics')
+    g.start('controller', '--params-file', str(CONFIG / 'controller.yaml'),
+            '-p', 'robots:=[r1, r2]', '-p', 'model_source:=topic', '-p', 'noise:=true')
+    model = make_truth_model(3, seed=1)
+    theta = np.stack([model.laws[a].theta for a in model.agents])
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    structure = ModelStructure(tuple(model.agents), 1.0, 'pairwise', (6, 6),
+                               (-150.0, 150.0, -150.0, 150.0), 60.0, 6)
+    ear.node.create_publisher(String, '/herd/model/structure', latched).publish(
+        String(data=structure.to_json()))
+    q = np.stack([model.laws[a].noise_cov for a in model.agents])
+    regimes = np.concatenate([np.stack([0.1 * q, 4.0 * q], axis=1).reshape(3, 2, 4),
+                              np.tile([[0.95, 0.05], [0.1, 0.9]], (3, 1, 1))], axis=2)
+    params = ear.node.create_publisher(Float64MultiArray, '/herd/model/params', 10)
+    noise = ear.node.create_publisher(Float64MultiArray, '/herd/model/noise', 10)
+    regime_pub = ear.node.create_publisher(Float64MultiArray, '/herd/model/noise_regimes',
+                                           latched)
+
+    def matrix(a, labels):
+        msg = Float64MultiArray()
+        strides = np.cumprod(a.shape[::-1])[::-1]
+        msg.layout.dim = [MultiArrayDimension(label=lab, size=n, stride=int(st))
+                          for lab, n, st in zip(labels, a.shape, strides)]
+        msg.data = a.ravel().tolist()
+        return msg
+
+    def publish():
+        noise.publish(matrix(q.reshape(3, 4), ('agent', 'qxx_qxy_qyx_qyy')))
+        regime_pub.publish(matrix(regimes, ('agent', 'regime', 'q4_transition')))
+        params.publish(matrix(theta, ('agent', 'param')))
+    ear.node.create_timer(0.5, publish)
+
+    def said(text):
+        return any(text in s.message for _, d in diags for s in d.status)
+    assert ear.spin(15.0, until=lambda: said('stop-and-go noise in 2 regimes')), \
+        [s.message for _, d in diags[-3:] for s in d.status]
+
+
 def test_bad_parameters_exit_with_one_clear_line(ros_env, console_script):
     for name, args, needle in [
             ('fleet_sim', ['-p', 'kinematics:=tank'], 'kinematics'),

@@ -230,7 +230,7 @@ class OnlineHerdEstimator:
                  stats_window: int = 500, windup: str = 'directional', basis: RbfBasis = None,
                  robust: bool = False, alignment: bool = False, alignment_radius: float = 40.0,
                  alignment_size: int = 4, alignment_neighbourhood: str = 'radius',
-                 alignment_nearest: int = 7):
+                 alignment_nearest: int = 7, regime_window: int = 0):
         agents = [str(a) for a in agents]
         if len(agents) < 1 or len(set(agents)) != len(agents):
             raise HerdInputError(f'agents must be a non-empty list of distinct ids, got {agents}')
@@ -268,6 +268,12 @@ class OnlineHerdEstimator:
                                alignment_radius=float(alignment_radius),
                                alignment_neighbourhood=kernel.neighbourhood,
                                alignment_nearest=int(kernel.nearest))
+        # the residual window of the noise regimes (online_regimes; 0 = none): not part of
+        # the configuration a checkpoint must match, and not in the checkpoint (refitted)
+        from herd_ros.estimation.online_regimes import ResidualWindow
+        self.residual_window = (ResidualWindow(len(agents), regime_window)
+                                if int(regime_window) > 0 else None)
+        self.noise_regimes = None          # (covariances (N, K, 2, 2), transition (N, K, K))
         self._reset_stream()
 
     def structure(self):
@@ -302,6 +308,9 @@ class OnlineHerdEstimator:
         self.session = {'first_time': None, 'last_time': None, 'snapshots': 0}
         self.skill_sq = np.zeros((3, n))
         self.skill_n = np.zeros(n)
+        if getattr(self, 'residual_window', None) is not None:
+            self.residual_window.clear()
+        self.noise_regimes = None
 
     def reset(self):
         """Forget everything learned (θ = θ₀, P = P₀, counters and statistics zero)."""
@@ -345,6 +354,8 @@ class OnlineHerdEstimator:
             if abs(step - self.dt) > STEP_TOLERANCE * self.dt:
                 self.break_chain()
                 self._push(t, p)
+                if self.residual_window is not None:
+                    self.residual_window.push(None)         # a missing emission
                 return SnapshotResult('gap', step=step)
         self._push(t, p)
         if len(self.buffer_times) < 3:
@@ -354,6 +365,7 @@ class OnlineHerdEstimator:
         missing = ~np.isfinite(p0).all(axis=1)
         valid &= ~self.regressor.missing_neighbors(missing, self.last_seen, p0)
         y = (p2 - p1) / self.dt
+        before = self.rls.sq_residual.copy() if self.residual_window is not None else None
         if self.robust:
             weight = self._outlier_weights(H, y)
             root = np.sqrt(weight)
@@ -365,6 +377,16 @@ class OnlineHerdEstimator:
         self._count_visits(p0, used)
         self._update_stats(e, used)
         self._update_skill(e, H[:, :, 0], y, used)
+        if self.residual_window is not None:
+            # the standardized innovations ε = L⁻¹e of this update (cov Q_i, not inflated by
+            # the parameters' uncertainty early on): the RLS adds ε εᵀ to its residual sum
+            from herd_ros.estimation.online_regimes import rank_one_factor
+            # (an agent's first p updates are left out: while θ_i is still unidentified its
+            # standardized innovations are near zero, not noise)
+            outer = self.rls.sq_residual - self.rls.forgetting * before
+            settled = used & (self.rls.samples > self.regressor.n_params)
+            self.residual_window.push(np.where(settled[:, None], rank_one_factor(outer),
+                                               np.nan))
         self.buffer_times.pop(0)
         self.buffer_positions.pop(0)
         return SnapshotResult('updated', used, e, self.dt)
@@ -538,12 +560,41 @@ class OnlineHerdEstimator:
             se[i, kept] = np.sqrt(np.clip(np.diag(ck), 0, None))
         return theta, se
 
+    def refit_noise_regimes(self):
+        """Refit the noise regimes on the residual window
+        (:func:`~herd_ros.estimation.online_regimes.fit_window`); the fit summary, or None
+        (no window, or no agent with ``MIN_RESIDUALS`` residuals in it yet).
+        :attr:`noise_regimes` is then the fitted (covariances, transition), or None when
+        one regime (Gaussian noise) is kept."""
+        if self.residual_window is None:
+            return None
+        from herd_ros.estimation.online_regimes import MIN_RESIDUALS, fit_window
+        if self.residual_window.counts().max(initial=0) < MIN_RESIDUALS:
+            return None
+        got = fit_window(self.residual_window)
+        if got is None:
+            return None
+        cov, trans, fit = got
+        self.noise_regimes = (cov, trans) if fit['n_regimes'] > 1 else None
+        return fit
+
     def model(self, frame_id: str = 'map', datum=None):
-        """The current estimate as a model (HerdModel or SharedLawModel), lazily pruned."""
+        """The current estimate as a model (HerdModel or SharedLawModel), lazily pruned;
+        with the noise regimes when they have been fitted, scaled so that their stationary
+        mean is the model's Q_i (as the regimes of a fitted model file are)."""
         keeps = self.kept_centers()
         theta, se = self.pruned_estimate(keeps)
-        return self.regressor.to_model(theta, se, self.rls.noise_cov(), keeps, self.dt,
-                                       frame_id, datum)
+        noise_cov = self.rls.noise_cov()
+        model = self.regressor.to_model(theta, se, noise_cov, keeps, self.dt, frame_id, datum)
+        if self.noise_regimes is not None:
+            import dataclasses
+
+            from herd_ros.model.noise_regimes import regimes_scaled_to
+            cov, trans = self.noise_regimes
+            meta = {**(model.meta or {}),
+                    'noise_regimes': (regimes_scaled_to(cov, trans, noise_cov), trans)}
+            model = dataclasses.replace(model, meta=meta)
+        return model
 
     def save_model(self, path, frame_id: str = 'map', datum=None):
         """Write the model file (``schwager2007`` or ``schwager2007_shared``) atomically."""

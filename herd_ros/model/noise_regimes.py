@@ -121,10 +121,13 @@ def fit_regimes(residuals: np.ndarray, n_regimes: int, iterations: int = 200,
             'n_parameters': 3 * k + k * (k - 1)}
 
 
-def fit_herd_regimes(residuals: np.ndarray, counts=REGIME_COUNTS) -> dict:
+def fit_herd_regimes(residuals: np.ndarray, counts=REGIME_COUNTS, margin: float = 0.0
+                     ) -> dict:
     """One K for the herd by BIC (−2 log L + p log n summed over agents), residuals
     (T, N, 2) -> {'n_regimes': K, 'bic': {K: value}, 'agents': [fit_regimes per agent],
-    'too_few': [indices of agents with too few residuals]}.
+    'too_few': [indices of agents with too few residuals]}. With a ``margin``, a K larger
+    than the one chosen so far is taken only when it lowers the BIC by more than the
+    margin (10: "very strong" evidence, Kass & Raftery 1995, JASA 90:773).
 
     An agent with too few residuals for K regimes (fewer than 10 K) gets K copies of its
     residuals' covariance (Gaussian noise in K regimes' clothing) and adds nothing to the
@@ -146,7 +149,10 @@ def fit_herd_regimes(residuals: np.ndarray, counts=REGIME_COUNTS) -> dict:
                            for f in per if f['n_samples']))
     if not bic:
         raise HerdInputError('noise regimes: too few residuals to fit any regime')
-    best = min(bic, key=bic.get)
+    best = min(bic)
+    for k in sorted(bic):
+        if bic[k] < bic[best] - margin:
+            best = k
     return {'n_regimes': best, 'bic': bic, 'agents': fits[best], 'too_few': too_few[best]}
 
 
@@ -191,6 +197,19 @@ class RegimeNoise:
         xi = self.rng.standard_normal((len(self.state), 2))
         f = self.factor[np.arange(len(self.state)), self.state]            # (R, 2, 2)
         return np.sqrt(beta) * np.einsum('rij,rj->ri', f, xi)
+
+
+def carry_regime_state(previous, source) -> bool:
+    """Give ``source`` (a new :class:`RegimeNoise`) the regime states of ``previous`` (the
+    one it replaces) when both switch regimes over the same agents and regime count, so a
+    rest or a move outlives a model update; whether it did."""
+    if not (isinstance(previous, RegimeNoise) and isinstance(source, RegimeNoise)):
+        return False
+    if previous.state.shape != source.state.shape or \
+            previous.transition.shape != source.transition.shape:
+        return False
+    source.state = previous.state.copy()
+    return True
 
 
 class GaussianNoise:
@@ -339,6 +358,23 @@ def _em_step(r, ok, cov, trans, init):  # pragma: no cover - compiled
     return new_cov, new_trans, new_init, loglik
 
 
+def regimes_scaled_to(covariances, transition, noise_cov):
+    """Regime covariances rescaled per agent so that the trace of their stationary mean
+    Σ_k π_ik Q_ik is tr Q_i (``noise_cov`` (N, 2, 2)); an agent with tr Q_i = 0 or no
+    regime variance gets K copies of Q_i (Gaussian noise, as the model has it)."""
+    cov = np.array(covariances, dtype=float, copy=True)
+    trans = np.asarray(transition, dtype=float)
+    q = np.asarray(noise_cov, dtype=float)
+    for i in range(len(cov)):
+        mean = np.einsum('k,kij->ij', stationary_distribution(trans[i]), cov[i])
+        target, have = float(np.trace(q[i])), float(np.trace(mean))
+        if target > 0 and have > 0 and np.isfinite(have):
+            cov[i] *= target / have
+        else:
+            cov[i] = q[i]
+    return cov
+
+
 def with_noise_regimes(model, runs_positions: list, counts=REGIME_COUNTS) -> tuple:
     """``model`` with noise regimes fitted to its residuals on ``runs_positions`` (a list of
     (T, N, 2) arrays in the model's agents order): (model, fit summary). K = 1 (BIC keeps
@@ -358,11 +394,8 @@ def with_noise_regimes(model, runs_positions: list, counts=REGIME_COUNTS) -> tup
         return model, fit
     cov = np.stack([f['covariances'] for f in fit['agents']])
     trans = np.stack([f['transition'] for f in fit['agents']])
-    for i in range(model.n_agents):
-        mean = np.einsum('k,kij->ij', stationary_distribution(trans[i]), cov[i])
-        if i in fit['too_few'] or not np.trace(mean) > 0:
-            cov[i] = model.noise_cov[i]               # Gaussian noise, as the model has it
-        else:
-            cov[i] *= np.trace(model.noise_cov[i]) / np.trace(mean)
+    cov = regimes_scaled_to(cov, trans, model.noise_cov)
+    for i in fit['too_few']:
+        cov[i] = model.noise_cov[i]                   # Gaussian noise, as the model has it
     meta = {**(model.meta or {}), 'noise_regimes': (cov, trans)}
     return dataclasses.replace(model, meta=meta), fit

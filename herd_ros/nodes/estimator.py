@@ -5,7 +5,9 @@ a NaN pose = missing, its update skipped). Publishes ``/herd/model/params``
 (Float64MultiArray ``agent`` × ``param``, rows θ_i as in doc/formats.md: [damping, theta1..,
 theta2.., field_u.., field_v..], shared law [damping, profile.., field_u.., field_v..]) and,
 latched, ``/herd/model/structure`` (how to read them: :mod:`herd_ros.model.model_structure`),
-``/herd/model/noise`` (Q_i), ``/herd/model/prediction`` (one step ahead, eq. 8, stamped
+``/herd/model/noise`` (Q_i), ``/herd/model/noise_regimes`` (stop-and-go noise refitted
+every ``regime_refit_every`` updates, :mod:`herd_ros.estimation.online_regimes`),
+``/herd/model/prediction`` (one step ahead, eq. 8, stamped
 with the tick it predicts), ``/herd/model/markers`` (:mod:`herd_ros.nodes.model_markers`)
 and ``/diagnostics`` (per agent samples, residual RMS, whiteness, condition of P, skill
 against the naive baselines; clock problems as WARN). Services ``~/save_model`` and
@@ -38,7 +40,7 @@ from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, data_path, decl
                                        describe_remaining_parameters, diagnostic_array,
                                        diagnostic_status, exit_process, matrix_message,
                                        run_node, seconds_to_stamp, stamp_to_seconds,
-                                       wall_timer)
+                                       tensor_message, wall_timer)
 from herd_ros.nodes.model_markers import model_markers, pose_at
 from herd_ros.params.estimator import (LEARNER_OPTIONS, PARAMS as DEFAULTS, check,
                                       forgetting_problem)
@@ -63,7 +65,9 @@ class Estimator(Node):
         self.dynamics = HerdDynamics.online_learner(cfg['agents'], cfg['dt'], **{
             k: cfg[k] for k in LEARNER_OPTIONS})
         self.core = self.dynamics.online         # checkpoints, statistics, markers
-        self.counts = dict(snapshots=0, updates=0, gaps=0, backwards=0, sessions=1)
+        self.counts = dict(snapshots=0, updates=0, gaps=0, backwards=0, sessions=1,
+                           regime_fits=0)
+        self.regimes_said = None          # the regime count last logged
         self.clock_warning = ''
         self._resume()
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -73,6 +77,8 @@ class Estimator(Node):
             String(data=self.core.structure().to_json()))
         self.params_pub = self.create_publisher(Float64MultiArray, '/herd/model/params', 10)
         self.noise_pub = self.create_publisher(Float64MultiArray, '/herd/model/noise', 10)
+        self.regimes_pub = self.create_publisher(Float64MultiArray,
+                                                 '/herd/model/noise_regimes', latched)
         self.pred_pub = self.create_publisher(PoseArray, '/herd/model/prediction', 10)
         self.marker_pub = self.create_publisher(MarkerArray, '/herd/model/markers', 1)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -163,7 +169,34 @@ class Estimator(Node):
         if result.status == 'updated':
             self.counts['updates'] += 1
             self.publish_params(msg.header.stamp)
+            if (self.cfg['regime_window'] > 0
+                    and self.counts['updates'] % self.cfg['regime_refit_every'] == 0):
+                self.refit_regimes()
         self.publish_prediction()
+
+    def refit_regimes(self):
+        """Refit the stop-and-go noise on the residual window and publish it (K = 1, plain
+        Gaussian noise, is published too: a controller drops earlier regimes)."""
+        fit = self.core.refit_noise_regimes()
+        if fit is None:
+            return
+        from herd_ros.estimation.online_regimes import pack_regimes
+        self.counts['regime_fits'] += 1
+        k = fit['n_regimes']
+        if self.core.noise_regimes is not None:
+            cov, trans = self.core.noise_regimes
+        else:
+            n = len(self.core.agents)
+            cov, trans = self.core.rls.noise_cov().reshape(n, 1, 2, 2), np.ones((n, 1, 1))
+        self.regimes_pub.publish(tensor_message(pack_regimes(cov, trans),
+                                                ('agent', 'regime', 'q4_transition')))
+        if k != self.regimes_said:
+            self.regimes_said = k
+            bic = fit['bic']
+            self.get_logger().info(
+                f'noise regimes: {k} by BIC on the last {self.core.residual_window.filled} '
+                f'steps' + ('' if k > 1 else ' (Gaussian noise)') + ' (BIC ' + ', '.join(
+                    f'{j}: {bic[j] - bic[1]:+.0f}' for j in sorted(bic)) + ')')
 
     def _new_session(self, t: float, back: float):
         """Data time went back by more than ``new_session_after_s``: a new session (a resume
@@ -172,6 +205,7 @@ class Estimator(Node):
         aside, learned = set_aside(self.cfg['checkpoint_path']), self.core.describe_session()
         self.core.reset()
         self.counts['sessions'] += 1
+        self.regimes_said = None
         self.get_logger().info(
             f'data time went back {back:.0f} s (to {t:.3f}): a new session, learning afresh'
             + (f'; the previous one ({learned}) is kept as {aside}' if aside else ''))
@@ -238,6 +272,7 @@ class Estimator(Node):
     def on_reset(self, request, response):
         """Service ~/reset: θ and P back to their start, counters zero."""
         self.core.reset()
+        self.regimes_said = None
         self.get_logger().info('estimator reset: θ = θ₀, P = P₀, counters zero')
         response.success, response.message = True, 'reset'
         return response

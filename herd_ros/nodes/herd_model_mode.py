@@ -1,6 +1,7 @@
 """Mode ``herd_model`` of the controller: each robot follows its assigned animal's learned
 law (:mod:`herd_ros.control.herd_follower`), the model from a model file's ``model.*``
-parameters or live from the estimator's ``/herd/model/params``. The shell of the mode:
+parameters or live from the estimator's ``/herd/model/params`` (with its noise Q_i and,
+when fitted, its stop-and-go noise regimes, ``/herd/model/noise_regimes``). The shell of the mode:
 parameters, subscriptions and the checks of each model adopted
 (:mod:`herd_ros.control.damping`)."""
 from __future__ import annotations
@@ -13,8 +14,10 @@ from herd_ros.control.damping import damping_check
 from herd_ros.control.fleet_observation import FleetObservation
 from herd_ros.control.herd_follower import HerdClockHold, HerdFollower, follower_for
 from herd_ros.errors import HerdInputError
+from herd_ros.estimation.online_regimes import unpack_regimes
 from herd_ros.herd_dynamics import HerdDynamics
 from herd_ros.model.model_structure import ModelStructure
+from herd_ros.model.noise_regimes import carry_regime_state
 from herd_ros.nodes.ros_common import ParameterError, declare_parameters
 from herd_ros.params.controller import HERD_MODEL as HERD_MODEL_DEFAULTS
 
@@ -52,7 +55,7 @@ class HerdModelPolicy:
                 node.get_logger().warning(warning)
             self.set_model(model)
         elif self.source == 'topic':
-            self.structure, self.noise_cov = None, None
+            self.structure, self.noise_cov, self.noise_regimes = None, None, None
             self.status = 'waiting for /herd/model/structure (the estimator)'
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -62,6 +65,8 @@ class HerdModelPolicy:
                                      self.on_params, 10)
             node.create_subscription(Float64MultiArray, '/herd/model/noise',
                                      self.on_noise, 10)
+            node.create_subscription(Float64MultiArray, '/herd/model/noise_regimes',
+                                     self.on_noise_regimes, latched)
         else:
             raise ParameterError(f'model_source must be file or topic, got {self.source!r}')
 
@@ -127,10 +132,18 @@ class HerdModelPolicy:
         # and re-seeding each time would repeat the same draw (a constant push, not noise)
         if not hasattr(self, 'rng'):
             self.rng = np.random.default_rng(self.seed)
+        previous = getattr(self.follower, 'noise_source', None)
         self.follower = follower_for(model, self._assignment(list(model.agents)), self.robots,
                                      noise=self.noise, seed=self.rng)
+        # ... and the regime chains run on: a rest or a move outlives the model update
+        carry_regime_state(previous, self.follower.noise_source)
         self.updates += 1
-        self.status = f'model of {model.n_agents} animals, dt {model.dt:g} s ({self.source})'
+        regimes = (model.meta or {}).get('noise_regimes')
+        noise = ('' if not self.noise else
+                 f', stop-and-go noise in {np.shape(regimes[0])[1]} regimes' if regimes
+                 else ', Gaussian noise')
+        self.status = (f'model of {model.n_agents} animals, dt {model.dt:g} s '
+                       f'({self.source}){noise}')
         if self.updates == 1 or self.refused_since_adopted:
             a = np.asarray(model.damping, dtype=float)
             self.node.get_logger().info(
@@ -172,7 +185,14 @@ class HerdModelPolicy:
                 kept = 'keeping the previous model' if self.follower is not None else \
                     'robots hold still until a model is accepted'
                 raise HerdInputError(f'/herd/model/params refused: {problem}; {kept}')
-            self.set_model(HerdDynamics.from_parameters(theta, st, self.noise_cov).model)
+            model = HerdDynamics.from_parameters(theta, st, self.noise_cov).model
+            if self.noise_regimes is not None:
+                # the regimes as the estimator fitted them: the noise of its last window
+                # (online_regimes), the herd's present pace
+                import dataclasses
+                model = dataclasses.replace(model, meta={**(model.meta or {}),
+                                                         'noise_regimes': self.noise_regimes})
+            self.set_model(model)
         except (HerdInputError, ParameterError) as exc:
             self.status = f'ignored parameters: {exc}'
             self.refused_since_adopted += 1
@@ -189,6 +209,18 @@ class HerdModelPolicy:
                                         f'got {data.size}', throttle_duration_sec=10.0)
             return
         self.noise_cov = data.reshape(n, 2, 2)
+
+    def on_noise_regimes(self, msg: Float64MultiArray):
+        """The stop-and-go noise of every agent from ``/herd/model/noise_regimes`` (agent ×
+        regime × [qxx, qxy, qyx, qyy, transition row]); one regime = Gaussian noise."""
+        if self.structure is None:
+            return
+        try:
+            cov, trans = unpack_regimes(msg.data, len(self.structure.agents))
+        except HerdInputError as exc:
+            self.node.get_logger().warn(str(exc), throttle_duration_sec=10.0)
+            return
+        self.noise_regimes = (cov, trans) if cov.shape[1] > 1 else None
 
     # -- the policy -----------------------------------------------------------------------
     def command(self, state: FleetObservation) -> np.ndarray:

@@ -225,6 +225,20 @@ def matrix_message(rows, column_label: str, row_label: str = 'agent'):
     return msg
 
 
+def tensor_message(values, labels):
+    """A Float64MultiArray of an n-D array (row-major), one labelled dimension per axis."""
+    import array
+
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+    a = np.asarray(values, dtype=float)
+    msg = Float64MultiArray()
+    strides = np.cumprod(a.shape[::-1])[::-1]
+    msg.layout.dim = [MultiArrayDimension(label=label, size=int(size), stride=int(stride))
+                      for label, size, stride in zip(labels, a.shape, strides)]
+    msg.data = array.array('d', a.ravel())
+    return msg
+
+
 def diagnostic_status(name: str, level, message: str, values: dict | None = None,
                       hardware_id: str = '') -> DiagnosticStatus:
     """A DiagnosticStatus with key/values rendered as text."""

@@ -162,11 +162,14 @@ HERD_MODEL = {
         commented=True),
     'noise': Param(
         False,
-        "draw the law's noise w ~ N(0, Q) of the assigned animal",
+        "draw the law's noise w of the assigned animal (N(0, Q), or its noise regimes)",
         doc=('\n'
-             "Draw the law's noise w ~ N(0, Q) of the assigned animal (model "
-             'file only: the live\n'
-             'topic carries no Q), and its seed.')),
+             "Draw the law's noise w of the assigned animal, and its seed: N(0, Q_i), "
+             'or its stop-and-go\n'
+             'noise regimes where the model file has them or the estimator '
+             'publishes them\n'
+             '(/herd/model/noise and /herd/model/noise_regimes with model_source '
+             'topic).')),
     'seed': Param(
         0,
         'seed of the noise generator',

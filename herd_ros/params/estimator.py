@@ -126,6 +126,29 @@ PARAMS = {
              'Off by default: on clean real herds it costs ~0.6 % of one-step '
              'RMS (their heavy\n'
              'tails are real movement).')),
+    'regime_window': Param(
+        240,
+        ('steps of standardized one-step residuals kept to fit stop-and-go noise '
+         'regimes (published on /herd/model/noise_regimes); 0 = none'),
+        range=(0, 1000000),
+        doc=('Stop-and-go noise: the last regime_window steps of each agent\'s '
+             'standardized one-step\n'
+             'residuals are kept, and every regime_refit_every updates the noise '
+             'is refitted as a\n'
+             'Markov-switching mixture (1-3 regimes by BIC, '
+             'herd_ros/model/noise_regimes.py) and\n'
+             'published on /herd/model/noise_regimes: robots driven by the live '
+             'law rest and move in\n'
+             'bursts as the animals do, at the pace of the last window (240 '
+             'steps: 20 min at dt 5 s).\n'
+             '0 = Gaussian noise (Q_i of the whole run) only.')),
+    'regime_refit_every': Param(
+        60,
+        'updates between refits of the noise regimes',
+        range=(1, 1000000000),
+        doc=('Updates between refits of the noise regimes (a refit of 19 agents '
+             'over 240 steps\n'
+             'takes about 0.1 s); the first comes after as many updates.')),
     'model_out': Param(
         'herd_model.yaml',
         ('model file written by ~/save_model and at stop; relative to the data '
@@ -183,7 +206,7 @@ TABLE = NodeTable('estimator', HEADER, PARAMS)
 LEARNER_OPTIONS = ('law', 'field_grid', 'field_bounds', 'forgetting', 'p0', 'min_visits',
                    'interaction_radius', 'profile_size', 'robust', 'alignment',
                    'alignment_radius', 'alignment_size', 'alignment_neighbourhood',
-                   'alignment_nearest')
+                   'alignment_nearest', 'regime_window')
 
 
 def check(values: dict) -> dict:
