@@ -566,12 +566,24 @@ class OnlineHerdEstimator:
         (no window, or no agent with ``MIN_RESIDUALS`` residuals in it yet).
         :attr:`noise_regimes` is then the fitted (covariances, transition), or None when
         one regime (Gaussian noise) is kept."""
-        if self.residual_window is None:
+        residuals = self.regime_residuals()
+        if residuals is None:
             return None
-        from herd_ros.estimation.online_regimes import MIN_RESIDUALS, fit_window
-        if self.residual_window.counts().max(initial=0) < MIN_RESIDUALS:
+        from herd_ros.estimation.online_regimes import fit_residuals
+        return self.adopt_regimes(fit_residuals(residuals))
+
+    def regime_residuals(self):
+        """A copy of the residual window (T, N, 2) ready for a regime fit, or None (no
+        window, or no agent with ``MIN_RESIDUALS`` residuals in it yet)."""
+        from herd_ros.estimation.online_regimes import MIN_RESIDUALS
+        if self.residual_window is None or \
+                self.residual_window.counts().max(initial=0) < MIN_RESIDUALS:
             return None
-        got = fit_window(self.residual_window)
+        return self.residual_window.residuals()
+
+    def adopt_regimes(self, got):
+        """Take the result of :func:`~herd_ros.estimation.online_regimes.fit_residuals`
+        ((covariances, transition, fit) or None); the fit summary or None."""
         if got is None:
             return None
         cov, trans, fit = got

@@ -94,8 +94,14 @@ def fit_window(window: ResidualWindow, counts=REGIME_COUNTS, margin: float = BIC
     None when there are too few residuals for any fit. More regimes than one only on very
     strong evidence (BIC lower by more than ``margin``). An agent with too few residuals
     for K regimes gets K copies of its residuals' covariance (Gaussian noise)."""
+    return fit_residuals(window.residuals(), counts, margin)
+
+
+def fit_residuals(residuals, counts=REGIME_COUNTS, margin: float = BIC_MARGIN):
+    """:func:`fit_window` on residuals (T, N, 2) already taken out of a window (a refit in
+    a worker thread works on such a copy; the EM kernel releases the GIL)."""
     try:
-        fit = fit_herd_regimes(window.residuals(), counts, margin)
+        fit = fit_herd_regimes(residuals, counts, margin)
     except HerdInputError:
         return None
     cov = np.stack([f['covariances'] for f in fit['agents']])

@@ -257,7 +257,7 @@ def subset_regimes(meta: dict, index) -> dict:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _em_step(r, ok, cov, trans, init):  # pragma: no cover - compiled
     """One Baum–Welch iteration (Rabiner 1989; scaled forward–backward): r (T, 2) residuals
     (0 where missing), ok (T,) 1/0, cov (K, 2, 2), trans (K, K), init (K,) -> (new cov, new

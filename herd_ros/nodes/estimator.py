@@ -68,6 +68,7 @@ class Estimator(Node):
         self.counts = dict(snapshots=0, updates=0, gaps=0, backwards=0, sessions=1,
                            regime_fits=0)
         self.regimes_said = None          # the regime count last logged
+        self._regime_pool, self._regime_job, self._regime_generation = None, None, 0
         self.clock_warning = ''
         self._resume()
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -134,6 +135,8 @@ class Estimator(Node):
     def on_shutdown(self):
         """On a stop signal: the checkpoint, and the model learned so far (``model_out``),
         so nothing learned is lost however the node is stopped (short of ``kill -9``)."""
+        if self._regime_pool is not None:
+            self._regime_pool.shutdown(wait=False, cancel_futures=True)
         if self.cfg['checkpoint_path']:
             self.write_checkpoint()
         if self.cfg['model_out'] and self.counts['updates'] > 0:
@@ -166,6 +169,7 @@ class Estimator(Node):
             self.counts['gaps'] += 1
             self._warn(f'snapshot step {result.step:.3f} s differs from dt {self.core.dt:g} s: '
                        f'the pair is not used')
+        self.take_regimes()
         if result.status == 'updated':
             self.counts['updates'] += 1
             self.publish_params(msg.header.stamp)
@@ -175,9 +179,39 @@ class Estimator(Node):
         self.publish_prediction()
 
     def refit_regimes(self):
-        """Refit the stop-and-go noise on the residual window and publish it (K = 1, plain
-        Gaussian noise, is published too: a controller drops earlier regimes)."""
-        fit = self.core.refit_noise_regimes()
+        """Start a refit of the stop-and-go noise on a copy of the residual window in the
+        worker thread (one at a time: a refit still running skips this turn); a later
+        snapshot publishes it (:meth:`take_regimes`), so a large herd's refit (1 000 agents:
+        2-3 s) never holds up the snapshots."""
+        if self._regime_job is not None:
+            return
+        residuals = self.core.regime_residuals()
+        if residuals is None:
+            return
+        from concurrent.futures import ThreadPoolExecutor
+
+        from herd_ros.estimation.online_regimes import fit_residuals
+        if self._regime_pool is None:
+            self._regime_pool = ThreadPoolExecutor(max_workers=1,
+                                                   thread_name_prefix='noise_regimes')
+        self._regime_job = (self._regime_generation,
+                            self._regime_pool.submit(fit_residuals, residuals))
+
+    def take_regimes(self):
+        """Adopt and publish a finished refit (K = 1, plain Gaussian noise, is published too:
+        a controller drops earlier regimes); one fitted before a reset is dropped."""
+        job = self._regime_job
+        if job is None or not job[1].done():
+            return
+        self._regime_job = None
+        generation, future = job
+        if generation != self._regime_generation:
+            return
+        try:
+            fit = self.core.adopt_regimes(future.result())
+        except Exception as exc:  # noqa: BLE001 - a failed refit must not stop the learning
+            self.get_logger().error(f'noise regimes: refit failed ({exc}); keeping the last')
+            return
         if fit is None:
             return
         from herd_ros.estimation.online_regimes import pack_regimes
@@ -198,6 +232,12 @@ class Estimator(Node):
                 f'steps' + ('' if k > 1 else ' (Gaussian noise)') + ' (BIC ' + ', '.join(
                     f'{j}: {bic[j] - bic[1]:+.0f}' for j in sorted(bic)) + ')')
 
+    def _forget_regimes(self):
+        """A reset or a new session: a refit under way is dropped when it ends."""
+        self._regime_generation += 1
+        self._regime_job = None
+        self.regimes_said = None
+
     def _new_session(self, t: float, back: float):
         """Data time went back by more than ``new_session_after_s``: a new session (a resume
         after a crash continues the data, so it never lands here)."""
@@ -205,7 +245,7 @@ class Estimator(Node):
         aside, learned = set_aside(self.cfg['checkpoint_path']), self.core.describe_session()
         self.core.reset()
         self.counts['sessions'] += 1
-        self.regimes_said = None
+        self._forget_regimes()
         self.get_logger().info(
             f'data time went back {back:.0f} s (to {t:.3f}): a new session, learning afresh'
             + (f'; the previous one ({learned}) is kept as {aside}' if aside else ''))
@@ -272,7 +312,7 @@ class Estimator(Node):
     def on_reset(self, request, response):
         """Service ~/reset: θ and P back to their start, counters zero."""
         self.core.reset()
-        self.regimes_said = None
+        self._forget_regimes()
         self.get_logger().info('estimator reset: θ = θ₀, P = P₀, counters zero')
         response.success, response.message = True, 'reset'
         return response
