@@ -105,3 +105,27 @@ def test_large_herds_print_the_collars_that_lost_the_most():
     assert len(shown) == 3
     assert sorted(lost[a] for a in shown) == sorted(lost.values())[-3:]
     assert list(shown) == [a for a in counters if a in shown]      # in the table's order
+
+
+def test_the_track_clock_ticks_between_nearly_any_two_fixes(tmp_path, capsys):
+    from herd_ros.errors import HerdInputError
+    from herd_ros.ingest.pipeline import auto_dt, track_dt
+    # intervals 40, 60, 300 (collar a) and 35, 35 (collar b); a 2 h silence is left out:
+    # 10th percentile 35 s -> the largest round step not above it, 30 s
+    fixes = pd.DataFrame({'agent': ['a'] * 5 + ['b'] * 3,
+                          'time': [0.0, 40.0, 100.0, 400.0, 7600.0, 0.0, 35.0, 70.0]})
+    assert track_dt(fixes) == 30.0
+    # b now fixes every 9 s: 10th percentile 9 s -> 5 s; the herd clock of a model stays
+    # the median interval, 40 s -> 30 s (the nearest round step on a log scale)
+    fixes.loc[fixes['agent'] == 'b', 'time'] = [0.0, 9.0, 18.0]
+    assert track_dt(fixes) == 5.0 and auto_dt(fixes) == 30.0
+    with pytest.raises(HerdInputError, match='--dt'):
+        track_dt(pd.DataFrame({'agent': ['a'], 'time': [0.0]}))
+
+
+def test_ingest_without_dt_writes_the_track_on_the_tracking_clock(gps_csv, tmp_path, capsys):
+    # fixes every 1.0-1.3 s: the track ticks every second
+    out = tmp_path / 'track.csv'
+    assert main(['ingest', str(gps_csv), '-o', str(out)]) == 0
+    assert 'ticks of 1 s (the 10th percentile of the fix intervals' in capsys.readouterr().out
+    assert read_trajectory_csv(out)[0].dt == pytest.approx(1.0)

@@ -77,8 +77,10 @@ def add_arguments(parser):
                         help='GPS CSV, Movebank CSV, GPX, rosbag2 directory or .mcap file')
     parser.add_argument('-o', '--output', required=True, help='trajectory CSV to write')
     parser.add_argument('--dt', type=float, default=None,
-                        help='herd clock step (s); default: the median fix interval, rounded '
-                             'up to a round step')
+                        help='clock step (s) of the track; default: the largest round step '
+                             'not above the 10th percentile of the fix intervals (a tick '
+                             'between nearly any two fixes, so each fix is in the track '
+                             'within a step)')
     parser.add_argument('--smoother', choices=('none', 'rts', 'lag', 'fir'), default='none',
                         help='none: causal filter (as the node); rts: Rauch-Tung-Striebel; '
                              'lag: fixed-lag smoother (each tick given the next --lag fixes); '
@@ -107,7 +109,9 @@ def run(args) -> int:
         datum = parse_datum(args.datum)
     if args.lag < 0:
         raise HerdInputError(f'--lag must be >= 0 fixes, got {args.lag}')
-    traj = trajectory_from_fixes(fixes, args.dt, datum=datum, smoother=args.smoother,
+    from herd_ros.ingest.pipeline import track_dt
+    dt = args.dt if args.dt is not None else track_dt(fixes)
+    traj = trajectory_from_fixes(fixes, dt, datum=datum, smoother=args.smoother,
                                  lag=args.lag, progress=True, **filter_kwargs(args))
     write_trajectory_csv(args.output, traj)
     lead, trail = traj.meta['trimmed']
@@ -118,7 +122,7 @@ def run(args) -> int:
         lat, lon, alt = traj.meta['datum']
         print(f'datum: lat {lat:.9f} lon {lon:.9f} alt {alt:.3f} '
               f'({"given" if args.datum else "first valid fix"})')
-    dt_how = 'given' if args.dt else 'from the fix intervals'
+    dt_how = 'given' if args.dt else 'the 10th percentile of the fix intervals, rounded down'
     print(f'clock: {traj.n_steps} ticks of {traj.meta["dt"]:g} s ({dt_how}), the union of '
           f'the {traj.n_agents} collars\' spans ({lead} empty leading, {trail} empty '
           f'trailing ticks cut); stale agent-ticks (NaN: before a collar\'s first fix, '

@@ -125,6 +125,26 @@ def auto_dt(fixes: pd.DataFrame) -> float:
     return float(nice[np.argmin(np.abs(np.log(nice / med)))])
 
 
+def track_dt(fixes: pd.DataFrame) -> float:
+    """Default clock step of a track that is itself the product (``herd-ros ingest``): the
+    largest round step (:data:`NICE_STEPS`) not above the 10th percentile of the fix
+    intervals, so the clock ticks between nearly any two consecutive fixes of a collar and
+    every fix is in the track within a step of its arrival. On the herd clock of
+    :func:`auto_dt` (one tick per typical fix interval) a fix that arrives after a tick
+    waits a whole interval: on collars fixing every 30-300 s the track's last pose before
+    a fix was then older than the last raw fix, and lost to it (tracking benchmark). The
+    live ``gps_ingest`` ticks at 1 s by default for the same reason; a model is fitted on
+    :func:`auto_dt`'s clock, one step per fix."""
+    steps = fix_intervals(fixes)
+    if not len(steps):
+        raise HerdInputError('cannot choose the clock step: no collar has two fixes at '
+                             'different times; give --dt')
+    p10 = float(np.percentile(steps, 10))
+    nice = np.asarray(NICE_STEPS)
+    fit = nice[nice <= p10 * (1 + 1e-9)]
+    return float(fit[-1]) if len(fit) else float(nice[0])
+
+
 #: Motion model of the offline path and the node unless told otherwise: a correlated random
 #: walk whose velocity forgets itself in two minutes (stationary speed std 0.39 m/s per
 #: axis), right for walking and grazing animals fixed every second to every few minutes.
