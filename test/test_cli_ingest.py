@@ -119,6 +119,10 @@ def test_the_track_clock_ticks_between_nearly_any_two_fixes(tmp_path, capsys):
     # the median interval, 40 s -> 30 s (the nearest round step on a log scale)
     fixes.loc[fixes['agent'] == 'b', 'time'] = [0.0, 9.0, 18.0]
     assert track_dt(fixes) == 5.0 and auto_dt(fixes) == 30.0
+    # a 5 min duty cycle with bursts of 1 s fixes: at most ten ticks per median interval
+    burst = pd.DataFrame({'agent': 'c', 'time': np.r_[np.arange(0.0, 30000.0, 300.0),
+                                                       30000.0 + np.arange(60.0)]})
+    assert track_dt(burst) == 30.0
     with pytest.raises(HerdInputError, match='--dt'):
         track_dt(pd.DataFrame({'agent': ['a'], 'time': [0.0]}))
 

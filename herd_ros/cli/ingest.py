@@ -78,9 +78,9 @@ def add_arguments(parser):
     parser.add_argument('-o', '--output', required=True, help='trajectory CSV to write')
     parser.add_argument('--dt', type=float, default=None,
                         help='clock step (s) of the track; default: the largest round step '
-                             'not above the 10th percentile of the fix intervals (a tick '
-                             'between nearly any two fixes, so each fix is in the track '
-                             'within a step)')
+                             'not above the 10th percentile of the fix intervals nor below '
+                             'a tenth of their median (a tick between nearly any two fixes, '
+                             'so each fix is in the track within a step)')
     parser.add_argument('--smoother', choices=('none', 'rts', 'lag', 'fir'), default='none',
                         help='none: causal filter (as the node); rts: Rauch-Tung-Striebel; '
                              'lag: fixed-lag smoother (each tick given the next --lag fixes); '

@@ -128,8 +128,9 @@ def auto_dt(fixes: pd.DataFrame) -> float:
 def track_dt(fixes: pd.DataFrame) -> float:
     """Default clock step of a track that is itself the product (``herd-ros ingest``): the
     largest round step (:data:`NICE_STEPS`) not above the 10th percentile of the fix
-    intervals, so the clock ticks between nearly any two consecutive fixes of a collar and
-    every fix is in the track within a step of its arrival. On the herd clock of
+    intervals (nor below a tenth of their median), so the clock ticks between nearly any two
+    consecutive fixes of a collar and every fix is in the track within a step of its
+    arrival. On the herd clock of
     :func:`auto_dt` (one tick per typical fix interval) a fix that arrives after a tick
     waits a whole interval: on collars fixing every 30-300 s the track's last pose before
     a fix was then older than the last raw fix, and lost to it (tracking benchmark). The
@@ -139,9 +140,11 @@ def track_dt(fixes: pd.DataFrame) -> float:
     if not len(steps):
         raise HerdInputError('cannot choose the clock step: no collar has two fixes at '
                              'different times; give --dt')
-    p10 = float(np.percentile(steps, 10))
+    # at most ten ticks per median interval: collars that mix bursts of 1 s fixes into a
+    # 5 min duty cycle would otherwise write a tick per second for months
+    low = max(float(np.percentile(steps, 10)), float(np.median(steps)) / 10.0)
     nice = np.asarray(NICE_STEPS)
-    fit = nice[nice <= p10 * (1 + 1e-9)]
+    fit = nice[nice <= low * (1 + 1e-9)]
     return float(fit[-1]) if len(fit) else float(nice[0])
 
 
