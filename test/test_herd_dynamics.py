@@ -82,6 +82,32 @@ def test_partial_fit_learns_the_same_dampings_online(known):
     np.testing.assert_allclose(got, truth.damping, rtol=0.02)
 
 
+def test_a_finer_herd_clock_is_skipped_between_model_steps(known):
+    # the same run on a clock four times finer (gps_ingest at a fine step, the law at the
+    # run's): the snapshots in between are skipped, and what is learned is exactly what the
+    # model's own clock gives; a step longer than dt still breaks the chain
+    truth, run = known
+    steps = 400
+    coarse = HerdDynamics.online_learner(truth.agents, run.dt, field_grid=(4, 4),
+                                         field_bounds=BOUNDS)
+    fine = HerdDynamics.online_learner(truth.agents, run.dt, field_grid=(4, 4),
+                                       field_bounds=BOUNDS)
+    statuses = []
+    for k in range(steps):
+        t, p = float(run.times[k]), run.positions[k]
+        coarse.partial_fit(t, p)
+        statuses.append(fine.partial_fit(t, p).status)
+        if k + 1 < steps:
+            for j in (1, 2, 3):       # whatever is between (a fresher pose, a stale one)
+                q = p + j * 0.25 * (run.positions[k + 1] - p)
+                statuses.append(fine.partial_fit(t + j * 0.25 * run.dt, q).status)
+    assert statuses.count('between') == 3 * (steps - 1)
+    assert 'gap' not in statuses and statuses.count('updated') == steps - 2
+    np.testing.assert_array_equal(fine.online.theta, coarse.online.theta)
+    assert fine.partial_fit(float(run.times[steps - 1]) + 1.5 * run.dt,
+                            run.positions[steps]).status == 'gap'
+
+
 def test_partial_fit_needs_an_online_learner():
     with pytest.raises(HerdInputError, match='online learner'):
         HerdDynamics(model=damping_only([0.9, 0.9])).partial_fit(0.0, np.zeros((2, 2)))

@@ -212,7 +212,9 @@ class AlignedRegressor:
 
 @dataclass
 class SnapshotResult:
-    """What one snapshot did: ``status`` is 'updated', 'primed', 'gap' or 'backwards'."""
+    """What one snapshot did: ``status`` is 'updated', 'primed', 'gap', 'between' (less
+    than a model step after the last snapshot used: a herd clock finer than the model's
+    step, skipped) or 'backwards'."""
 
     status: str
     updated: np.ndarray | None = None      # (N,) bool
@@ -348,6 +350,11 @@ class OnlineHerdEstimator:
             step = t - self.buffer_times[-1]
             if step <= 0:
                 return SnapshotResult('backwards', step=step)
+            if step < self.dt * (1.0 - STEP_TOLERANCE):
+                # a herd clock finer than the model (gps_ingest ticking every second for a
+                # fresh /herd/poses, the law learned at the collars' interval): the model
+                # pairs snapshots one of its steps apart and skips those in between
+                return SnapshotResult('between', step=step)
         sess['first_time'] = t if sess['first_time'] is None else sess['first_time']
         sess['last_time'], sess['snapshots'] = t, sess['snapshots'] + 1
         if self.buffer_times:

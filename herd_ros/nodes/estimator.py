@@ -65,8 +65,8 @@ class Estimator(Node):
         self.dynamics = HerdDynamics.online_learner(cfg['agents'], cfg['dt'], **{
             k: cfg[k] for k in LEARNER_OPTIONS})
         self.core = self.dynamics.online         # checkpoints, statistics, markers
-        self.counts = dict(snapshots=0, updates=0, gaps=0, backwards=0, sessions=1,
-                           regime_fits=0)
+        self.counts = dict(snapshots=0, updates=0, gaps=0, backwards=0, between=0,
+                           sessions=1, regime_fits=0)
         self.regimes_said = None          # the regime count last logged
         self._regime_pool, self._regime_job, self._regime_generation = None, None, 0
         self.clock_warning = ''
@@ -165,6 +165,8 @@ class Estimator(Node):
             self.counts['backwards'] += 1
             self._warn(f'snapshot at {t:.3f} s is not after the previous one: ignored')
             return
+        if result.status == 'between':
+            self.counts['between'] += 1          # a finer herd clock: skipped, as it should
         if result.status == 'gap':
             self.counts['gaps'] += 1
             self._warn(f'snapshot step {result.step:.3f} s differs from dt {self.core.dt:g} s: '

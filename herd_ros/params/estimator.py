@@ -16,13 +16,18 @@ PARAMS = {
              'gps_ingest). Required.')),
     'dt': Param(
         0.0,
-        ('herd clock step (s); snapshots further apart are not paired '
-         '(required, > 0)'),
+        ('model step (s): snapshots one step apart are paired; closer ones are '
+         'skipped, further ones not paired (required, > 0)'),
         example=1.0,
-        doc=("Herd clock step (s). Every snapshot's stamp is checked against "
-             'it: a step that differs\n'
-             'by more than 0.1 % is reported (WARN) and that pair is not used. '
-             'Required.')),
+        doc=("Model step (s): the law is learned from snapshots this far apart. "
+             'A herd clock finer\n'
+             'than it (gps_ingest at 1 s for a fresh /herd/poses, the law at the '
+             "collars' 2-minute\n"
+             'interval) is fine when its step divides dt: the snapshots in between '
+             'are skipped\n'
+             "(counted 'between'). A step longer than dt by more than 0.1 % is "
+             'reported (WARN) and\n'
+             'that pair is not used. Required.')),
     'law': Param(
         'pairwise',
         ('interaction law: pairwise (the paper) or shared (one distance '
