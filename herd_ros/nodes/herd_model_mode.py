@@ -104,6 +104,7 @@ class HerdModelPolicy:
             return
         if structure != self.structure:
             self.structure = structure
+            self._read_regimes()
             self.node.get_logger().info(
                 f'model structure: {len(structure.agents)} agents, dt {structure.dt:g} s, '
                 f'law {structure.law}, field grid {structure.field_grid[0]} x '
@@ -212,11 +213,17 @@ class HerdModelPolicy:
 
     def on_noise_regimes(self, msg: Float64MultiArray):
         """The stop-and-go noise of every agent from ``/herd/model/noise_regimes`` (agent ×
-        regime × [qxx, qxy, qyx, qyy, transition row]); one regime = Gaussian noise."""
-        if self.structure is None:
+        regime × [qxx, qxy, qyx, qyy, transition row]); one regime = Gaussian noise. Latched:
+        one that comes before the structure is read when the structure arrives."""
+        self.regimes_data = msg.data
+        self._read_regimes()
+
+    def _read_regimes(self):
+        data = getattr(self, 'regimes_data', None)
+        if data is None or self.structure is None:
             return
         try:
-            cov, trans = unpack_regimes(msg.data, len(self.structure.agents))
+            cov, trans = unpack_regimes(data, len(self.structure.agents))
         except HerdInputError as exc:
             self.node.get_logger().warn(str(exc), throttle_duration_sec=10.0)
             return
