@@ -167,6 +167,8 @@ class Estimator(Node):
             return
         if result.status == 'between':
             self.counts['between'] += 1          # a finer herd clock: skipped, as it should
+            self.take_regimes()
+            return                               # (its prediction is already out)
         if result.status == 'gap':
             self.counts['gaps'] += 1
             self._warn(f'snapshot step {result.step:.3f} s differs from dt {self.core.dt:g} s: '
