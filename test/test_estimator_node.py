@@ -123,7 +123,7 @@ class Feeder:
 
     def publish(self, times, positions):
         """Publish the snapshots after the first, keeping < 400 in flight (queue depth 1000)."""
-        base = self.wait_for_estimator(times, positions)
+        base = self.base = self.wait_for_estimator(times, positions)
         for k in range(1, len(times)):
             self.pub.publish(self.snapshot(times[k], positions[k]))
             while k - (self.received - base) > 400:
@@ -266,6 +266,9 @@ def test_a_replay_started_over_is_a_new_session(ros, herd, console_script, tmp_p
         feeder.publish(run.times[:n], run.positions[:n])
         assert feeder.spin(20.0, lambda: min(feeder.samples.get(a, 0) for a in run.agents)
                            >= 0.9 * n), feeder.samples
+        # the checkpoint written at the stop is to hold the whole run: every snapshot taken
+        assert feeder.spin(20.0, lambda: feeder.received - feeder.base >= n - 1), \
+            (feeder.received, feeder.base)
     finally:
         stop(proc)
     assert ckpt.is_file()
