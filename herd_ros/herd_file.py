@@ -81,6 +81,7 @@ def herd_file_dict(setup: HerdSetup, bag=None, relative_to=None) -> dict:
             'interaction_radius': r(setup.interaction_radius),
             'field_grid': [int(g) for g in setup.field_grid],
             'field_bounds': [r(b) for b in setup.field_bounds],
+            **({'clock_dt': float(setup.clock)} if setup.clock != setup.dt else {}),
         },
         'fence': [[r(x), r(y)] for x, y in setup.fence],
         'robots': {
@@ -179,6 +180,11 @@ def read_herd_file(path) -> tuple[HerdSetup, Path | None]:
             ok = False
         if not ok:
             raise HerdInputError(f'{w}: {key} must be a positive number, got {value!r}')
+    clock_dt = float(herd.get('clock_dt', dt))
+    if not (math.isfinite(clock_dt) and 0 < clock_dt <= dt
+            and abs(dt / clock_dt - round(dt / clock_dt)) < 1e-9):
+        raise HerdInputError(f'{w}: herd.clock_dt must divide herd.dt ({dt:g} s), got '
+                             f'{herd.get("clock_dt")!r}')
     bag = data.get('bag') or None
     if bag is not None:
         bag = Path(bag)
@@ -190,7 +196,8 @@ def read_herd_file(path) -> tuple[HerdSetup, Path | None]:
         field_bounds=bounds, fence=fence, robots=names, robot_start=start,
         robot_max_speed=float(positive['robots.max_speed']), law=law,
         interaction_radius=float(positive['herd.interaction_radius']), duration_s=float('nan'),
-        rate=float(positive['rate']), notes={'herd_file': str(path)})
+        rate=float(positive['rate']), notes={'herd_file': str(path)},
+        clock_dt=clock_dt if clock_dt != dt else 0.0)
     return setup, bag
 
 
@@ -226,7 +233,8 @@ def node_parameters(setup: HerdSetup, bag, out_dir=None, rate=None,
               'wait_for_subscribers': 1,
               'clock_rate_hz': 40.0 if composed else 100.0,
               'exit_when_done': not composed}
-    gps = {**common, **herd, 'stale_after': float(setup.stale_after),
+    # /herd/poses on the clock (each fix in it within a step); the estimator learns at dt
+    gps = {**common, **herd, 'dt': setup.clock, 'stale_after': float(setup.stale_after),
            'reinit_after_gap': float(setup.reinit_after_gap), 'fix_queue_depth': 1000}
     if setup.datum:
         gps['datum'] = [float(v) for v in setup.datum]
@@ -254,7 +262,8 @@ def node_parameters(setup: HerdSetup, bag, out_dir=None, rate=None,
         'fleet_sim': {'ros__parameters': {
             **common, 'robots': list(setup.robots), 'kinematics': 'holonomic',
             # a step per half model step of data time (not per /clock message)
-            'rate_hz': float(min(2.0, 2.0 / dt)), 'initial_poses': init, 'max_speed': v_max,
+            'rate_hz': float(min(2.0, 2.0 / setup.clock)), 'initial_poses': init,
+            'max_speed': v_max,
             'max_accel': float(max(0.5, v_max)), 'cmd_timeout_s': 1.5 * dt,
             **fence_param, 'datum': [float(v) for v in (setup.datum or [0.0, 0.0, 0.0])]}},
     }

@@ -7,10 +7,14 @@ bursts and silent collars cannot inflate the region or the speeds:
 
 * **datum**: the median latitude/longitude of the valid fixes (the centre of the herd's range,
   robust to outliers; altitude 0);
-* **dt** (herd clock step): the median fix interval, rounded to a round step
+* **dt** (the model's step): the median fix interval, rounded to a round step
   (:func:`~herd_ros.ingest.pipeline.auto_dt`), and at least ``min_dt`` (the live demo asks
   for :data:`LIVE_MIN_DT`); ``stale_after`` and ``reinit_after_gap`` from the fix intervals
-  too (:func:`~herd_ros.ingest.pipeline.auto_filter_params`);
+  too (:func:`~herd_ros.ingest.pipeline.auto_filter_params`); **clock_dt** (the step of
+  ``/herd/poses``): the largest round step that divides dt, is at least ``min_dt`` and at
+  most the track's clock (:func:`~herd_ros.ingest.pipeline.track_dt`), so that each fix
+  of a duty-cycled collar is in ``/herd/poses`` within a step while the estimator learns at
+  dt (it skips the snapshots in between); dt itself where none is finer (1 Hz collars);
 * **field bounds**: the region the filtered herd visited, with a margin of 10 % of its extent
   (at least 10 m); **field grid**: about :data:`FIELD_CELLS` cells of equal spacing over it,
   and no more than one cell per :data:`SAMPLES_PER_FIELD_CELL` herd-clock steps of an
@@ -75,6 +79,13 @@ class HerdSetup:
     duration_s: float                     # data time spanned by the fixes
     rate: float                           # replay speed-up
     notes: dict = field(default_factory=dict)
+    clock_dt: float = 0.0                 # /herd/poses step (s), dividing dt; 0 = dt
+
+    @property
+    def clock(self) -> float:
+        """The step of ``gps_ingest``'s herd clock (/herd/poses): :attr:`clock_dt`, or the
+        model's step ``dt`` when none is set."""
+        return float(self.clock_dt) if self.clock_dt and self.clock_dt > 0 else float(self.dt)
 
     def to_dict(self) -> dict:
         """Plain types, for the herd file and summary.json."""
@@ -88,6 +99,9 @@ class HerdSetup:
                  + (' (median of the valid fixes)' if derived else '')
                  if self.datum else 'the first valid fix')
         clock = f'  herd clock: dt {self.dt:g} s'
+        if self.clock != self.dt:
+            clock = (f'  herd clock: /herd/poses every {self.clock:g} s (each fix in it within '
+                     f'a step), the law learned at dt {self.dt:g} s')
         if derived:
             clock += (f' (median fix interval '
                       f'{self.notes.get("median_fix_interval_s", float("nan")):.3g} s, live '
@@ -112,12 +126,22 @@ def _margin(lo, hi, fraction=0.1, least=10.0):
     return max(least, fraction * (hi - lo))
 
 
+def herd_clock_step(dt: float, track: float, min_dt: float = 0.0) -> float:
+    """The step of /herd/poses for a model step ``dt``: the largest round step
+    (:data:`~herd_ros.ingest.pipeline.NICE_STEPS`) that divides ``dt``, is at least
+    ``min_dt`` and at most ``track`` (the track's clock); ``dt`` when there is none."""
+    from herd_ros.ingest.pipeline import NICE_STEPS
+    ok = [c for c in NICE_STEPS if max(min_dt, 0.0) <= c <= min(dt, track) + 1e-9
+          and abs(dt / c - round(dt / c)) < 1e-9]
+    return float(max(ok)) if ok else float(dt)
+
+
 def herd_setup_from_fixes(fixes: pd.DataFrame, *, dt: float | None = None,
                           rate: float | None = None, min_dt: float = 0.0,
                           target_wall_s: float = TARGET_WALL_S) -> HerdSetup:
     """Derive a :class:`HerdSetup` from a fixes table (see the module docstring)."""
     from herd_ros.ingest.pipeline import (auto_dt, auto_filter_params, fix_intervals,
-                                          trajectory_from_fixes, valid_fix_mask)
+                                          track_dt, trajectory_from_fixes, valid_fix_mask)
     from herd_ros.io.gps_files import normalise_fixes
 
     fixes = normalise_fixes(fixes)
@@ -127,6 +151,7 @@ def herd_setup_from_fixes(fixes: pd.DataFrame, *, dt: float | None = None,
     datum = [float(np.median(fixes['lat'].to_numpy()[valid])),
              float(np.median(fixes['lon'].to_numpy()[valid])), 0.0]
     dt = float(dt) if dt is not None else max(auto_dt(fixes), float(min_dt))
+    clock_dt = herd_clock_step(dt, track_dt(fixes), float(min_dt))
     filt = auto_filter_params(fixes)
     traj = trajectory_from_fixes(fixes, dt=dt, datum=datum, trim=True, **filt)
     p = traj.positions
@@ -167,7 +192,7 @@ def herd_setup_from_fixes(fixes: pd.DataFrame, *, dt: float | None = None,
         robot_start=start, robot_max_speed=float(np.clip(1.5 * v99, 0.5, 5.0)),
         law='pairwise' if len(agents) <= PAIRWISE_MAX_AGENTS else 'shared',
         interaction_radius=float(np.clip(4.0 * spacing, 10.0, 200.0)),
-        duration_s=duration, rate=float(rate),
+        duration_s=duration, rate=float(rate), clock_dt=clock_dt,
         notes={'median_fix_interval_s': float(np.median(fix_intervals(fixes))),
                'speed_p99_m_s': v99, 'median_nearest_neighbour_m': spacing,
                'visited_region': [float(xmin), float(xmax), float(ymin), float(ymax)]})

@@ -1,6 +1,7 @@
 """The demo's verdict (issue 30): each robot against its animal — where it started and
 whether every statistic is within the bar."""
 import numpy as np
+import pytest
 
 from herd_ros.report.demo_report import PASS_BAR, verdict
 from herd_ros.trajectory import HerdTrajectory
@@ -22,3 +23,27 @@ def test_start_offset_and_pass_by_hand():
     assert v['robots']['r1']['pass'] and not v['robots']['r2']['pass']
     assert v['herd_pass'] and not verdict(cows, robots, ['c1', 'c2'], rel,
                                           {'mean_distance': 0.31})['herd_pass']
+
+
+def test_published_skill_on_a_finer_herd_clock_scores_the_same_model_steps():
+    # the herd every 30 s, the model's step 120 s: the skill looks a model step back on the
+    # fine clock and equals the skill on the herd taken every 120 s; by hand, a prediction
+    # off by 3 m at every scored tick gives a model RMS of 3 m
+    import numpy as np
+
+    from herd_ros.simulation.prediction import published_prediction_skill
+    from herd_ros.trajectory import HerdTrajectory
+    rng = np.random.default_rng(0)
+    fine_t = 30.0 * np.arange(400)
+    fine_p = np.cumsum(rng.normal(0, 2, (400, 2, 2)), axis=0)
+    coarse = slice(0, None, 4)
+    pred_t = fine_t[coarse][2:]
+    pred_p = fine_p[coarse][2:] + np.array([3.0, 0.0])
+    preds = HerdTrajectory(pred_t, ['a', 'b'], pred_p)
+    fine = published_prediction_skill(HerdTrajectory(fine_t, ['a', 'b'], fine_p), preds,
+                                      120.0, clock=30.0)
+    plain = published_prediction_skill(
+        HerdTrajectory(fine_t[coarse], ['a', 'b'], fine_p[coarse]), preds, 120.0)
+    assert fine['model'] == pytest.approx(3.0) and fine['samples'] == plain['samples'] > 0
+    for m in ('model', 'constant_velocity', 'stay_put', 'damping_only'):
+        assert fine[m] == pytest.approx(plain[m]), m

@@ -53,6 +53,7 @@ def test_written_herd_file_reads_back_to_the_same_node_parameters(tmp_path):
     (lambda d: d['robots'].update(start=[[0, 0]]), 'one entry per agent'),
     (lambda d: d.update(fence=[[0, 0], [1, 1]]), 'at least 3 vertices'),
     (lambda d: d['herd'].update(agents=['cow a', 'cow_b']), 'not a valid ROS name'),
+    (lambda d: d['herd'].update(clock_dt=3.0), 'herd.clock_dt must divide herd.dt'),
 ])
 def test_bad_herd_files_get_one_line(tmp_path, edit, message):
     data = yaml.safe_load(SHIPPED.read_text())
@@ -88,3 +89,44 @@ def test_launch_file_has_no_herd_of_its_own():
     herdish = [s for s in strings if s.startswith(('cow_', 'baboon_', 'robot_', 'steer'))]
     assert herdish == []
     assert 'herd_baboons.yaml' in ''.join(strings)     # the shipped default herd file
+
+
+def test_the_herd_clock_is_the_largest_round_divisor_of_the_model_step_by_hand():
+    from herd_ros.herd_setup import herd_clock_step
+    assert herd_clock_step(120.0, 30.0, 5.0) == 30.0
+    assert herd_clock_step(120.0, 45.0, 5.0) == 30.0      # 45 s is not a round step
+    assert herd_clock_step(90.0, 30.0, 5.0) == 30.0
+    assert herd_clock_step(5.0, 1.0, 5.0) == 5.0          # 1 Hz collars on the live 5 s clock
+    assert herd_clock_step(7.0, 3.0, 5.0) == 7.0          # nothing between 5 and 3: dt
+
+
+def test_duty_cycled_collars_get_a_finer_herd_clock_than_the_model_step(tmp_path):
+    # collars fixing every 30-300 s: the law at the median interval (120 s), /herd/poses
+    # every 30 s (a tick between nearly any two fixes), the estimator skipping the ticks in
+    # between; the herd file carries the clock and the node parameters take it
+    import numpy as np
+    import pandas as pd
+
+    from herd_ros.herd_setup import herd_setup_from_fixes
+    from herd_ros.ingest.geodesy import enu_to_geodetic
+    rng = np.random.default_rng(3)
+    rows = []
+    for i in range(3):
+        t = 1.7e9 + np.cumsum(rng.uniform(30.0, 300.0, 400))
+        e = 30.0 * i + np.cumsum(rng.normal(0, 3, 400))
+        n = np.cumsum(rng.normal(0, 3, 400))
+        lat, lon, _ = enu_to_geodetic(e, n, 0.0, 46.8, 7.1, 450.0)
+        rows.append(pd.DataFrame({'time': t, 'agent': f'cow_{i}', 'lat': lat, 'lon': lon}))
+    setup = herd_setup_from_fixes(pd.concat(rows), min_dt=5.0)
+    assert setup.dt == 120.0 and setup.clock == 30.0
+    assert 'every 30 s' in setup.describe()
+    path = write_herd_file(tmp_path / 'herd.yaml', setup)
+    again, _ = read_herd_file(path)
+    assert again.clock == 30.0 and again.dt == 120.0
+    p = node_parameters(again, tmp_path / 'bag')
+    assert p['gps_ingest']['ros__parameters']['dt'] == 30.0
+    assert p['estimator']['ros__parameters']['dt'] == 120.0
+    assert p['fleet_sim']['ros__parameters']['rate_hz'] == pytest.approx(2.0 / 30.0)
+    # a herd whose clock is its model step writes no clock (the shipped herd files)
+    assert 'clock_dt' not in yaml.safe_load(write_herd_file(
+        tmp_path / 'small.yaml', small_setup()).read_text())['herd']

@@ -51,7 +51,9 @@ def add_arguments(p):
                    help='herd file (herd-ros herd-file writes one; the launch file reads the '
                         'same); default: everything derived from the bag')
     p.add_argument('--dt', type=float, default=None,
-                   help='herd clock step (s); default: from the fix intervals')
+                   help='the model\'s step (s); default: the median fix interval (at least '
+                        '5 s live); /herd/poses ticks at a divisor of it, fine enough to '
+                        'carry each fix within a step')
     p.add_argument('--grid', default='auto',
                    help='RBF grid of the environment field (--offline; auto = chosen by '
                         'cross-validation)')

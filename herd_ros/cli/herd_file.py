@@ -19,8 +19,8 @@ def add_arguments(p):
     p.add_argument('data', help='rosbag2 of NavSatFix on /herd/<agent>/fix, or a GPS CSV/GPX')
     p.add_argument('-o', '--out', default='herd.yaml', help='herd file to write')
     p.add_argument('--dt', type=float, default=None,
-                   help='herd clock step (s); default: from the fix intervals, at least the '
-                        'live demo\'s 5 s')
+                   help='the model\'s step (s); default: the median fix interval, at least '
+                        'the live demo\'s 5 s (/herd/poses ticks at a divisor of it)')
     p.add_argument('--rate', type=float, default=None,
                    help='replay speed-up; default: the bag plays in about two minutes')
 

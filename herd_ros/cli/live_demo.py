@@ -230,8 +230,9 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     write_trajectory_csv(out / 'herd_predictions.csv', predictions)
     write_trajectory_csv(out / 'robots_fleet_poses.csv', robots_traj)
     from herd_ros.simulation.prediction import published_prediction_skill
-    skill = published_prediction_skill(cows, predictions, setup.dt)
-    facts = {'bag': str(bag), 'datum': list(setup.datum), 'dt': setup.dt, 'rate': rate,
+    skill = published_prediction_skill(cows, predictions, setup.dt, clock=setup.clock)
+    facts = {'bag': str(bag), 'datum': list(setup.datum), 'dt': setup.dt,
+             'herd_clock_s': setup.clock, 'rate': rate,
              'setup': setup.to_dict(), 'wall_time_s': time.monotonic() - t0,
              'herd_snapshots': int(len(times)), 'model_updates': int(len(thetas)),
              'robot_samples': int(active.sum()), 'model_file': str(model_path),

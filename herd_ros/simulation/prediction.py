@@ -127,7 +127,7 @@ def damping_only_fit(positions: np.ndarray) -> np.ndarray:
 
 
 def published_prediction_skill(herd: HerdTrajectory, predictions: HerdTrajectory, dt: float,
-                               from_fraction: float = 0.5) -> dict:
+                               from_fraction: float = 0.5, clock: float | None = None) -> dict:
     """One-step skill of predictions as a live estimator published them, next to baselines.
 
     ``predictions.positions[k]`` is the position predicted for time ``predictions.times[k]``
@@ -140,18 +140,24 @@ def published_prediction_skill(herd: HerdTrajectory, predictions: HerdTrajectory
     * damping only: p(t − Δt) + a_i (p(t − Δt) − p(t − 2Δt)), a_i fitted by
       :func:`damping_only_fit` on the herd before the evaluated part (held out).
 
+    ``clock``: the herd's step when it is finer than the model's ``dt`` (a divisor of it;
+    default ``dt``); the baselines then look ``dt`` back all the same.
+
     Returns {method: RMS (m)} plus ``samples`` (agent-ticks) and ``from_time``.
     """
     times = np.asarray(herd.times, dtype=float)
-    index = {round(t / dt): k for k, t in enumerate(times)}
+    clock = float(dt if clock is None else clock)
+    per = max(1, int(round(dt / clock)))                  # herd ticks per model step
+    index = {round(t / clock): k for k, t in enumerate(times)}
     t_split = times[0] + from_fraction * (times[-1] - times[0]) if len(times) else np.nan
     p = herd.positions
-    a = damping_only_fit(p[times < t_split]) if len(times) else np.zeros(p.shape[1])
+    a = (damping_only_fit(p[times < t_split][::per]) if len(times)
+         else np.zeros(p.shape[1]))
     errs = {m: [] for m in ('model', 'constant_velocity', 'stay_put', 'damping_only')}
     for t, pred in zip(predictions.times, predictions.positions):
         if t < t_split:
             continue
-        k0, k1, k2 = (index.get(round(t / dt) - j) for j in (0, 1, 2))
+        k0, k1, k2 = (index.get(round(t / clock) - j * per) for j in (0, 1, 2))
         if k0 is None or k1 is None or k2 is None:
             continue
         truth, p1, p2 = p[k0], p[k1], p[k2]
