@@ -11,10 +11,11 @@ bursts and silent collars cannot inflate the region or the speeds:
   (:func:`~herd_ros.ingest.pipeline.auto_dt`), and at least ``min_dt`` (the live demo asks
   for :data:`LIVE_MIN_DT`); ``stale_after`` and ``reinit_after_gap`` from the fix intervals
   too (:func:`~herd_ros.ingest.pipeline.auto_filter_params`); **clock_dt** (the step of
-  ``/herd/poses``): the largest round step that divides dt, is at least ``min_dt`` and at
-  most the track's clock (:func:`~herd_ros.ingest.pipeline.track_dt`), so that each fix
-  of a duty-cycled collar is in ``/herd/poses`` within a step while the estimator learns at
-  dt (it skips the snapshots in between); dt itself where none is finer (1 Hz collars);
+  ``/herd/poses``): the largest round step that divides dt, is at least ``min_dt`` and
+  :data:`LIVE_MIN_DT` and at most the track's clock
+  (:func:`~herd_ros.ingest.pipeline.track_dt`), so that each fix of a duty-cycled collar is
+  in ``/herd/poses`` within a step while the estimator learns at dt (it skips the snapshots
+  in between); dt itself where none is finer (1 Hz collars);
 * **field bounds**: the region the filtered herd visited, with a margin of 10 % of its extent
   (at least 10 m); **field grid**: about :data:`FIELD_CELLS` cells of equal spacing over it,
   and no more than one cell per :data:`SAMPLES_PER_FIELD_CELL` herd-clock steps of an
@@ -151,7 +152,7 @@ def herd_setup_from_fixes(fixes: pd.DataFrame, *, dt: float | None = None,
     datum = [float(np.median(fixes['lat'].to_numpy()[valid])),
              float(np.median(fixes['lon'].to_numpy()[valid])), 0.0]
     dt = float(dt) if dt is not None else max(auto_dt(fixes), float(min_dt))
-    clock_dt = herd_clock_step(dt, track_dt(fixes), float(min_dt))
+    clock_dt = herd_clock_step(dt, track_dt(fixes), max(float(min_dt), LIVE_MIN_DT))
     filt = auto_filter_params(fixes)
     traj = trajectory_from_fixes(fixes, dt=dt, datum=datum, trim=True, **filt)
     p = traj.positions
