@@ -127,3 +127,14 @@ def test_a_new_noise_source_keeps_the_regimes_its_predecessor_was_in():
     np.testing.assert_array_equal(new.state, [1, 0, 1])
     assert not carry_regime_state(GaussianNoise(cov[:, 0]), new)
     assert not carry_regime_state(old, RegimeNoise(cov[:2], trans[:2], rng=3))
+
+
+def test_a_window_too_short_for_any_fit_is_refused_at_start():
+    from herd_ros.params import ParameterError
+    from herd_ros.params.estimator import PARAMS, check
+    values = {name: spec.default for name, spec in PARAMS.items()}
+    values.update(agents=['a', 'b'], dt=5.0)
+    assert check(dict(values, regime_window=0))['regime_window'] == 0
+    assert check(dict(values, regime_window=240))['regime_window'] == 240
+    with pytest.raises(ParameterError, match='regime_window must be 0'):
+        check(dict(values, regime_window=50))

@@ -146,7 +146,7 @@ PARAMS = {
              'law rest and move in\n'
              'bursts as the animals do, at the pace of the last window (240 '
              'steps: 20 min at dt 5 s).\n'
-             '0 = Gaussian noise (Q_i of the whole run) only.')),
+             '0 = Gaussian noise (Q_i of the whole run) only; otherwise at least 120.')),
     'regime_refit_every': Param(
         60,
         'updates between refits of the noise regimes',
@@ -242,6 +242,11 @@ def check(values: dict) -> dict:
     if not values['new_session_after_s'] > 0:
         raise ParameterError(f'parameter new_session_after_s must be positive, got '
                              f'{values["new_session_after_s"]}')
+    from herd_ros.estimation.online_regimes import MIN_RESIDUALS
+    if 0 < values['regime_window'] < MIN_RESIDUALS:
+        raise ParameterError(f'parameter regime_window must be 0 (no noise regimes) or at '
+                             f'least {MIN_RESIDUALS} steps (what a first regime fit needs), '
+                             f'got {values["regime_window"]}')
     values['field_grid'], values['field_bounds'] = grid, b
     return values
 
