@@ -293,14 +293,7 @@ def test_live_noise_regimes_from_the_estimator_topic(graph):
     noise = ear.node.create_publisher(Float64MultiArray, '/herd/model/noise', 10)
     regime_pub = ear.node.create_publisher(Float64MultiArray, '/herd/model/noise_regimes',
                                            latched)
-
-    def matrix(a, labels):
-        msg = Float64MultiArray()
-        strides = np.cumprod(a.shape[::-1])[::-1]
-        msg.layout.dim = [MultiArrayDimension(label=lab, size=n, stride=int(st))
-                          for lab, n, st in zip(labels, a.shape, strides)]
-        msg.data = a.ravel().tolist()
-        return msg
+    from herd_ros.nodes.ros_common import tensor_message as matrix
 
     def publish():
         noise.publish(matrix(q.reshape(3, 4), ('agent', 'qxx_qxy_qyx_qyy')))

@@ -8,7 +8,7 @@ import pytest
 
 from herd_ros.errors import HerdInputError
 from herd_ros.estimation.online_fit import OnlineHerdEstimator
-from herd_ros.estimation.online_regimes import (ResidualWindow, fit_window, pack_regimes,
+from herd_ros.estimation.online_regimes import (ResidualWindow, fit_residuals, pack_regimes,
                                                 rank_one_factor, unpack_regimes)
 from herd_ros.model.noise_regimes import (GaussianNoise, RegimeNoise, carry_regime_state,
                                           stationary_distribution)
@@ -78,7 +78,7 @@ def test_the_online_estimator_recovers_known_noise_regimes():
     # two regimes, as simulated: the loud one within 15 %, the quiet one well apart from it
     # (within 40 %: a tenth of the noise is where the law's small misfit shows), the dwell
     # of both as simulated
-    two_cov, two_trans, _ = fit_window(est.residual_window, counts=(2,))
+    two_cov, two_trans, _ = fit_residuals(est.residual_window.residuals(), counts=(2,))
     for i in range(3):
         ratio = np.trace(two_cov[i], axis1=1, axis2=2) / np.trace(cov[i], axis1=1, axis2=2)
         assert abs(ratio[1] - 1) < 0.15 and abs(ratio[0] - 1) < 0.4, (i, ratio)

@@ -94,7 +94,8 @@ def add_arguments(parser):
 
 def run(args) -> int:
     """Run the verb on the parsed ``args``; returns the exit status."""
-    from herd_ros.ingest.pipeline import format_counters, load_fixes, trajectory_from_fixes
+    from herd_ros.ingest.pipeline import (format_counters, load_fixes, track_dt,
+                                          trajectory_from_fixes)
     from herd_ros.trajectory import write_trajectory_csv
 
     from herd_ros.data_sources import is_trajectory_csv, planar_fixes_from_runs
@@ -109,7 +110,6 @@ def run(args) -> int:
         datum = parse_datum(args.datum)
     if args.lag < 0:
         raise HerdInputError(f'--lag must be >= 0 fixes, got {args.lag}')
-    from herd_ros.ingest.pipeline import track_dt
     dt = args.dt if args.dt is not None else track_dt(fixes)
     traj = trajectory_from_fixes(fixes, dt, datum=datum, smoother=args.smoother,
                                  lag=args.lag, progress=True, **filter_kwargs(args))

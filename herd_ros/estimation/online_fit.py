@@ -569,7 +569,7 @@ class OnlineHerdEstimator:
 
     def refit_noise_regimes(self):
         """Refit the noise regimes on the residual window
-        (:func:`~herd_ros.estimation.online_regimes.fit_window`); the fit summary, or None
+        (:func:`~herd_ros.estimation.online_regimes.fit_residuals`); the fit summary, or None
         (no window, or no agent with ``MIN_RESIDUALS`` residuals in it yet).
         :attr:`noise_regimes` is then the fitted (covariances, transition), or None when
         one regime (Gaussian noise) is kept."""

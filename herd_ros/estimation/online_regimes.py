@@ -88,18 +88,14 @@ def rank_one_factor(outer) -> np.ndarray:
     return np.stack([a, np.where(o[..., 0, 1] < 0, -c, c)], axis=-1)
 
 
-def fit_window(window: ResidualWindow, counts=REGIME_COUNTS, margin: float = BIC_MARGIN):
-    """The regimes of the window's residuals: (covariances (N, K, 2, 2), transition
-    (N, K, K), fit summary of :func:`~herd_ros.model.noise_regimes.fit_herd_regimes`), or
-    None when there are too few residuals for any fit. More regimes than one only on very
-    strong evidence (BIC lower by more than ``margin``). An agent with too few residuals
-    for K regimes gets K copies of its residuals' covariance (Gaussian noise)."""
-    return fit_residuals(window.residuals(), counts, margin)
-
-
 def fit_residuals(residuals, counts=REGIME_COUNTS, margin: float = BIC_MARGIN):
-    """:func:`fit_window` on residuals (T, N, 2) already taken out of a window (a refit in
-    a worker thread works on such a copy; the EM kernel releases the GIL)."""
+    """The regimes of residuals (T, N, 2) taken out of a window
+    (:meth:`ResidualWindow.residuals`, a copy: a refit in a worker thread works on it; the
+    EM kernel releases the GIL): (covariances (N, K, 2, 2), transition (N, K, K), fit
+    summary of :func:`~herd_ros.model.noise_regimes.fit_herd_regimes`), or None when there
+    are too few residuals for any fit. More regimes than one only on very strong evidence
+    (BIC lower by more than ``margin``). An agent with too few residuals for K regimes gets
+    K copies of its residuals' covariance (Gaussian noise)."""
     try:
         fit = fit_herd_regimes(residuals, counts, margin)
     except HerdInputError:
@@ -107,7 +103,6 @@ def fit_residuals(residuals, counts=REGIME_COUNTS, margin: float = BIC_MARGIN):
     cov = np.stack([f['covariances'] for f in fit['agents']])
     trans = np.stack([f['transition'] for f in fit['agents']])
     return cov, trans, fit
-
 
 
 def pack_regimes(covariances, transition) -> np.ndarray:

@@ -113,14 +113,19 @@ NICE_STEPS = (1.0, 2.0, 5.0, 10.0, 15.0, 20.0, 30.0, 60.0, 120.0, 300.0, 600.0, 
               1800.0, 3600.0)
 
 
-def auto_dt(fixes: pd.DataFrame) -> float:
-    """Default herd clock step: the median fix interval, rounded to the nearest round step
-    (:data:`NICE_STEPS`, nearest on a log scale): one tick per fix of a typical collar."""
+def _clock_intervals(fixes: pd.DataFrame) -> np.ndarray:
+    """:func:`fix_intervals`, or one clear error when there are none to choose a clock by."""
     steps = fix_intervals(fixes)
     if not len(steps):
         raise HerdInputError('cannot choose the herd clock step: no collar has two fixes '
                              'at different times; give --dt')
-    med = float(np.median(steps))
+    return steps
+
+
+def auto_dt(fixes: pd.DataFrame) -> float:
+    """Default herd clock step: the median fix interval, rounded to the nearest round step
+    (:data:`NICE_STEPS`, nearest on a log scale): one tick per fix of a typical collar."""
+    med = float(np.median(_clock_intervals(fixes)))
     nice = np.asarray(NICE_STEPS)
     return float(nice[np.argmin(np.abs(np.log(nice / med)))])
 
@@ -136,10 +141,7 @@ def track_dt(fixes: pd.DataFrame) -> float:
     a fix was then older than the last raw fix, and lost to it (tracking benchmark). The
     live ``gps_ingest`` ticks at 1 s by default for the same reason; a model is fitted on
     :func:`auto_dt`'s clock, one step per fix."""
-    steps = fix_intervals(fixes)
-    if not len(steps):
-        raise HerdInputError('cannot choose the clock step: no collar has two fixes at '
-                             'different times; give --dt')
+    steps = _clock_intervals(fixes)
     # at most ten ticks per median interval: collars that mix bursts of 1 s fixes into a
     # 5 min duty cycle would otherwise write a tick per second for months
     low = max(float(np.percentile(steps, 10)), float(np.median(steps)) / 10.0)

@@ -56,6 +56,7 @@ class HerdModelPolicy:
             self.set_model(model)
         elif self.source == 'topic':
             self.structure, self.noise_cov, self.noise_regimes = None, None, None
+            self.regimes_data = None        # the latest /herd/model/noise_regimes, as sent
             self.status = 'waiting for /herd/model/structure (the estimator)'
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -219,7 +220,8 @@ class HerdModelPolicy:
         self._read_regimes()
 
     def _read_regimes(self):
-        data = getattr(self, 'regimes_data', None)
+        """Unpack the latest regimes once the structure says how many agents they are for."""
+        data = self.regimes_data
         if data is None or self.structure is None:
             return
         try:

@@ -213,16 +213,10 @@ def seconds_to_stamp(t: float) -> Time:
 
 def matrix_message(rows, column_label: str, row_label: str = 'agent'):
     """A Float64MultiArray of a 2-D array (rows × columns, row-major, labelled)."""
-    import array
-
-    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
     a = np.asarray(rows, dtype=float)
-    n, p = a.shape
-    msg = Float64MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label=row_label, size=n, stride=n * p),
-                      MultiArrayDimension(label=column_label, size=p, stride=p)]
-    msg.data = array.array('d', a.ravel())
-    return msg
+    if a.ndim != 2:
+        raise ValueError(f'matrix_message needs a 2-D array, got shape {a.shape}')
+    return tensor_message(a, (row_label, column_label))
 
 
 def tensor_message(values, labels):
