@@ -33,6 +33,8 @@ from herd_ros.herding.strombom import (ShepherdParams, move_herders, sheep_step,
 
 #: seeds of the learning episodes (never those of the benchmark: 0 … S−1)
 LEARNING_SEEDS = range(100_000, 100_030)
+#: the online refit's prior weighs as much as this many steps of the herded herd
+PRIOR_STEPS = 5.0
 
 
 def record_episodes(setting: Setting, seeds=LEARNING_SEEDS, steps: int = 600,
@@ -65,33 +67,90 @@ def record_episodes(setting: Setting, seeds=LEARNING_SEEDS, steps: int = 600,
 
 @dataclass
 class LearnedResponse:
-    """The herd's mean law with the dog (module docstring), tabulated on ``grid`` (m)."""
+    """The herd's mean law with the dog (module docstring): θ = [ā, c (B), h (B')] on the
+    bases ``profile`` ψ (animals) and ``own_profile`` ψ' (the dog), the dog's term zero
+    beyond ``reach`` (m), and the information per row of the data it was fitted on
+    (:func:`~herd_ros.herding.online_response.run_information`, the online refit's prior)."""
 
-    damping: float
-    grid: np.ndarray
-    pooled: np.ndarray          # F̄(d) on grid (positive attracts)
-    to_dog: np.ndarray          # H̄(d) on grid (negative: flight)
+    theta: np.ndarray
+    profile: object
+    own_profile: object
+    reach: float
+    info_per_row: np.ndarray
     choices: dict
+    grid_size: int = 512
 
-    def step(self, P: np.ndarray, U: np.ndarray, dogs: np.ndarray):
-        """One step of the law for K herds (K, N, 2) with their dogs (K, D, 2)."""
+    def __post_init__(self):
+        self.theta = np.asarray(self.theta, dtype=float)
+        self.grid = np.linspace(0.0, max(self.profile.radius, self.own_profile.radius),
+                                self.grid_size)
+        self._phi = self.profile.features(self.grid)                    # (G, B)
+        self._phi_dog = self.own_profile.features(self.grid) * (self.grid <= self.reach)[:, None]
+
+    @property
+    def damping(self) -> float:
+        """ā."""
+        return float(self.theta[0])
+
+    def tables(self, theta=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ā (K,), F̄ (K, G), H̄ (K, G)) on :attr:`grid` for K parameter vectors (K, p)
+        (default: the fitted θ)."""
+        th = np.atleast_2d(self.theta if theta is None else theta)
+        B = self._phi.shape[1]
+        return th[:, 0], th[:, 1:1 + B] @ self._phi.T, th[:, 1 + B:] @ self._phi_dog.T
+
+    @property
+    def pooled(self) -> np.ndarray:
+        """F̄(d) on :attr:`grid` (positive attracts)."""
+        return self.tables()[1][0]
+
+    @property
+    def to_dog(self) -> np.ndarray:
+        """H̄(d) on :attr:`grid` (negative: flight)."""
+        return self.tables()[2][0]
+
+    def _lookup(self, table, d):
+        """Linear interpolation of per-herd tables (K, G) at d (K, ...) (0 beyond the grid)."""
+        G = self.grid.size
+        x = np.minimum(d / self.grid[-1], 2.0) * (G - 1)
+        i0 = np.minimum(x.astype(np.int64), G - 2)
+        w = x - i0
+        flat = i0.reshape(len(table), -1)
+        lo = np.take_along_axis(table, flat, axis=1).reshape(d.shape)
+        hi = np.take_along_axis(table, flat + 1, axis=1).reshape(d.shape)
+        return np.where(x <= G - 1, lo + w * (hi - lo), 0.0)
+
+    def velocity(self, P: np.ndarray, U: np.ndarray, dogs: np.ndarray, theta=None):
+        """The law's next velocity ā U + Σ_j F̄(d_ij) e_ij + Σ_k H̄(d_ik) e_ik for K herds,
+        the forces at ``P`` (K, N, 2) and the dogs ``dogs`` (K, D, 2); ``theta`` (K, p):
+        each herd's own parameters (default: the fitted θ for all)."""
+        a, pooled_tab, dog_tab = self.tables(theta)
+        K = P.shape[0]
+        if len(a) == 1 and K > 1:
+            a = np.repeat(a, K)
+            pooled_tab, dog_tab = np.repeat(pooled_tab, K, 0), np.repeat(dog_tab, K, 0)
         off = P[:, None, :, :] - P[:, :, None, :]                  # [k, i, j] = p_j − p_i
         d = np.sqrt((off ** 2).sum(-1))
         n = P.shape[1]
         d[:, np.arange(n), np.arange(n)] = np.inf
-        f = np.interp(d, self.grid, self.pooled, right=0.0)
+        f = self._lookup(pooled_tab, d)
         pooled = (f[..., None] * off / np.where(np.isfinite(d), d, 1.0)[..., None]).sum(2)
         to = dogs[:, None, :, :] - P[:, :, None, :]                 # (K, N, D, 2)
         dd = np.sqrt((to ** 2).sum(-1))
-        h = np.interp(dd, self.grid, self.to_dog, right=0.0)
+        h = self._lookup(dog_tab, dd)
         dog = (h[..., None] * to / np.maximum(dd, 1e-9)[..., None]).sum(2)
-        U = self.damping * U + pooled + dog
+        return a[:, None, None] * U + pooled + dog
+
+    def step(self, P: np.ndarray, U: np.ndarray, dogs: np.ndarray, theta=None):
+        """One step of the law for K herds: (P + U', U'), U' = :meth:`velocity` at P."""
+        U = self.velocity(P, U, dogs, theta)
         return P + U, U
 
 
 def learn_response(runs) -> LearnedResponse:
     """Fit the shared law with the dog's own profile on ``runs`` (module docstring)."""
     from herd_ros.herd_dynamics import FitOptions, HerdDynamics
+    from herd_ros.herding.online_response import run_information
     dyn = HerdDynamics(options=FitOptions(
         law='shared', own_agents=['dog'], terms=['damping+interactions'], grids=[],
         field='fitted', noise='gaussian', memories=(), alignment='off', noise_scale=1.0)).fit(runs)
@@ -100,31 +159,62 @@ def learn_response(runs) -> LearnedResponse:
     p = np.concatenate([r.positions for r in runs])
     seen = np.sqrt(((p[:, :-1] - p[:, -1:]) ** 2).sum(-1))
     reach = float(np.percentile(seen[np.isfinite(seen)], 95))
-    grid = np.linspace(0.0, max(m.profile.radius, m.own_profile.radius), 512)
-    pooled = m.profile.features(grid) @ m.profile_coef[animals].mean(axis=0)
-    to_dog = m.own_profile.features(grid) @ m.own_coef[animals, 0].mean(axis=0)
-    to_dog[grid > reach] = 0.0                                      # where the data end
-    return LearnedResponse(float(m.damping[animals].mean()), grid, pooled, to_dog,
+    theta = np.concatenate([[m.damping[animals].mean()], m.profile_coef[animals].mean(axis=0),
+                            m.own_coef[animals, 0].mean(axis=0)])
+    info, rows = run_information(runs, m.profile, m.own_profile)
+    return LearnedResponse(theta, m.profile, m.own_profile, reach, info / max(rows, 1),
                            dyn.choices)
 
 
 class ModelHerder:
     """Receding-horizon herder over a :class:`LearnedResponse` (module docstring); a policy
-    for :func:`~herd_ros.herding.benchmark.run_episodes`."""
+    for :func:`~herd_ros.herding.benchmark.run_episodes`. With ``adapt`` the response is
+    refitted online in every episode (:class:`~herd_ros.herding.online_response
+    .OnlineResponse`, the learned θ its prior, weighing ``prior_steps`` steps)."""
 
     def __init__(self, response: LearnedResponse, candidates: int = 12, horizon: int = 25,
-                 replan: int = 5, arc_deg: float = 30.0):
+                 replan: int = 5, arc_deg: float = 30.0, adapt: bool = True,
+                 prior_steps: float = PRIOR_STEPS):
         self.response, self.candidates = response, int(candidates)
         self.horizon, self.replan, self.arc = int(horizon), int(replan), np.radians(arc_deg)
+        self.adapt, self.prior_steps = bool(adapt), float(prior_steps)
+
+    def _observe(self, P, dogs, state):
+        """Keep the live episodes' last two states (animals and herders) and, with
+        ``adapt``, feed their last displacement to the online fit: u^{τ+1} = p^{τ+2} −
+        p^{τ+1} on u^τ and the forces at τ (:func:`~herd_ros.herding.online_response
+        .response_rows`). Returns the states at τ+1 (the previous call)."""
+        from herd_ros.herding.online_response import OnlineResponse, response_rows
+        live = state['live']
+        S, N, _ = P.shape
+        now = np.concatenate([P, dogs], axis=1)
+        if 'online' not in state:             # every episode is live at the first call
+            r = self.response
+            state['online'] = OnlineResponse(r.theta, r.info_per_row, len(live), 2 * N,
+                                             self.prior_steps)
+            state['history'] = np.repeat(now[:, None], 2, axis=1)     # [τ+1, τ]
+            state['calls'] = np.zeros(len(live), np.int64)
+        hist, calls = state['history'], state['calls']
+        last, before = hist[live, 0], hist[live, 1]
+        ready = calls[live] >= 2
+        if self.adapt and ready.any():
+            k = np.flatnonzero(ready)
+            x = response_rows(before[k, :N], last[k, :N] - before[k, :N], before[k, N:],
+                              self.response.profile, self.response.own_profile)
+            y = P[k] - last[k, :N]
+            state['online'].update(live[k], x.reshape(len(k), -1, x.shape[-1]),
+                                   y.reshape(len(k), -1))
+        hist[live, 1], hist[live, 0] = last, now
+        calls[live] += 1
+        return last
 
     def __call__(self, P, dogs, goal, sheep, shepherd, state):
         """Each herder's target (S, D, 2) for the live episodes, replanned every few steps."""
         live = state['live']
+        last = self._observe(P, dogs, state)
         t = state.setdefault('t', 0)
         state['t'] = t + 1
         plans = state.setdefault('plans', {})
-        prev = state.get('previous', {})
-        state['previous'] = {int(s): P[k].copy() for k, s in enumerate(live)}
         if t % self.replan and all(int(s) in plans for s in live):
             return self._formation(np.stack([plans[int(s)] for s in live]), P, dogs.shape[1])
         S, N, _ = P.shape
@@ -135,16 +225,21 @@ class ModelHerder:
         strom, _ = strombom_targets(P, dogs[:, :1], goal, sheep, shepherd)
         cands = np.concatenate([cands, strom], axis=1)              # (S, C, 2)
         C = cands.shape[1]
-        U0 = np.stack([P[k] - prev[int(s)] if int(s) in prev else np.zeros((N, 2))
-                       for k, s in enumerate(live)])
-        Pk = np.repeat(P[:, None], C, axis=1).reshape(S * C, N, 2)
-        Uk = np.repeat(U0[:, None], C, axis=1).reshape(S * C, N, 2)
-        dk = np.repeat(dogs[:, None, :1], C, axis=1).reshape(S * C, 1, 2)
+
+        def each(a):                                                # (S, ...) -> (S·C, ...)
+            return np.repeat(a[:, None], C, axis=1).reshape((S * C,) + a.shape[1:])
+
+        # the law as fitted: u^{τ+1} = ā u^τ + forces at τ (the herd and the dog a step back)
+        Pk, Uk = each(P), each(P - last[:, :N])
+        dk, d_back = each(dogs[:, :1]), each(last[:, N:N + 1])
+        theta = each(state['online'].theta[live])
         target = cands.reshape(S * C, 1, 2)
         for _ in range(self.horizon):
-            Pk, Uk = self.response.step(Pk, Uk, dk)
+            Uk = self.response.velocity(Pk - Uk, Uk, d_back, theta)
+            Pk = Pk + Uk
             gap = target - dk
             dist = np.sqrt((gap ** 2).sum(-1, keepdims=True))
+            d_back = dk
             dk = dk + np.minimum(shepherd.speed, dist) * gap / np.maximum(dist, 1e-9)
         d = np.sqrt(((Pk - np.asarray(goal)) ** 2).sum(-1)).reshape(S, C, N)
         cost = d.mean(-1) + 0.5 * d.max(-1)
