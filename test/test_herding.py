@@ -121,3 +121,15 @@ def test_animals_of_the_other_family_are_herded_too():
     st = Setting(14, 1, 0.3, family='herd-law')
     result = run_episodes(st, strombom_herder, range(8))
     assert result['success'].mean() >= 0.75
+
+
+def test_the_model_herder_drives_a_herd_that_never_gathers():
+    """Cohesion n = 6 of 14 (below half the herd): the herd never comes within r_a N^(2/3)
+    of its centre, so Strömbom's shepherd collects for ever; the model herder drives the
+    loose herd in. 30 paired episodes, Wilson intervals apart (issue 27, acceptance 2)."""
+    from herd_ros.cli.herding import model_herder
+    st = Setting(14, 1, 0.3, 6)
+    base = run_episodes(st, strombom_herder, range(30))
+    ours = run_episodes(st, model_herder(st), range(30))
+    k0, k1 = int(base['success'].sum()), int(ours['success'].sum())
+    assert wilson_interval(k0, 30)[1] < wilson_interval(k1, 30)[0], (k0, k1)

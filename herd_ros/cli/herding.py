@@ -49,7 +49,7 @@ def add_arguments(p):
     p.add_argument('--herder', default='strombom',
                    help='herders to compare, comma-separated, of: strombom (Strömbom et al. '
                         '2014\'s shepherd), model (receding-horizon control over the '
-                        'learned response to the dog)')
+                        'learned response to the dog, refitted online while it herds)')
     p.add_argument('--no-gif', action='store_true', help='skip episode.gif')
 
 

@@ -6,18 +6,26 @@ shepherd with exploratory detours (the data must show the animals' response to a
 every side) are recorded as trajectories with the dog as an agent, and
 :class:`~herd_ros.herd_dynamics.HerdDynamics` fits the shared law with the dog's **own
 profile** (:mod:`herd_ros.model.shared_law`): per animal u_i^{τ+1} = a_i u_i^τ +
-Σ_{j: d_ij < r} F_i(d_ij) e_ij + H_i(d_i,dog) e_i,dog. The herder keeps the herd's mean law
-(ā, F̄, H̄; the animals are exchangeable), H̄ set to zero beyond the 95th percentile of the
-dog distances seen (where the data end), and tabulates F̄ and H̄ on a fine grid of d.
+Σ_{j: d_ij < r} F_i(d_ij) e_ij + H_i(d_i,dog) e_i,dog (distances at τ: Schwager et al.
+2007, eq. 2). The herder keeps the herd's mean law θ = (ā, F̄, H̄; the animals are
+exchangeable), H̄ set to zero beyond the 95th percentile of the dog distances seen (where
+the data end), and tabulates F̄ and H̄ on a fine grid of d.
+
+**Adapting** (``adapt``, the default): in every episode θ is refitted online from the
+animals' moves as the herder sees them (:mod:`~herd_ros.herding.online_response`: recursive
+least squares, the offline θ its prior weighing :data:`PRIOR_STEPS` steps of the herd), so
+a herd that answers the dog otherwise than the recordings is planned with its own law
+within a minute or two.
 
 **Control** (:class:`ModelHerder`), model-predictive control by sampling (the receding-
 horizon scheme of Mayne et al., *Automatica* 36:789, 2000, with candidates enumerated as in
 sampling-based MPC): every ``replan`` steps, each of ``candidates`` goal points for the
 herders — evenly around the herd's centre at r_a √N + 5 m, and Strömbom's own target — is
-scored by running the learned law ``horizon`` steps with the herders walking there at
-their speed; the cost is the predicted mean distance of the animals to the goal plus half
-the largest. The best is followed until the next plan. Several herders stand on an arc of
-± 30° about the chosen point as seen from the herd.
+scored by running the learned law (the episode's θ, as fitted: each step's forces from the
+positions a step back) ``horizon`` steps with the herders walking there at their speed;
+the cost is the predicted mean distance of the animals to the goal plus half the largest.
+The best is followed until the next plan. Several herders stand on an arc of ± 30° about
+the chosen point as seen from the herd.
 
 Plain numpy; no ROS.
 """
