@@ -22,7 +22,8 @@ horizon scheme of Mayne et al., *Automatica* 36:789, 2000, with candidates enume
 sampling-based MPC): every ``replan`` steps, each of ``candidates`` goal points for the
 herders — evenly around the herd's centre at r_a √N + 5 m, and Strömbom's own target — is
 scored by running the learned law (the episode's θ, as fitted: each step's forces from the
-positions a step back) ``horizon`` steps with the herders walking there at their speed;
+positions a step back) ``horizon`` steps with the herders walking there (with several, each
+to its place on the arc below) at their speed;
 the cost is the predicted mean distance of the animals to the goal plus half the largest.
 The best is followed until the next plan. Several herders stand on an arc of ± 30° about
 the chosen point as seen from the herd.
@@ -43,6 +44,8 @@ from herd_ros.herding.strombom import (ShepherdParams, move_herders, sheep_step,
 LEARNING_SEEDS = range(100_000, 100_030)
 #: the online refit's prior weighs as much as this many steps of the herded herd
 PRIOR_STEPS = 5.0
+#: animal pairs a chunk of the planner's rollouts forms at once (memory: ~16 bytes each)
+CHUNK_PAIRS = 2_000_000
 
 
 def record_episodes(setting: Setting, seeds=LEARNING_SEEDS, steps: int = 600,
@@ -232,29 +235,47 @@ class ModelHerder:
         cands = gcm[:, None, :] + ring * np.stack([np.cos(ang), np.sin(ang)], -1)[None]
         strom, _ = strombom_targets(P, dogs[:, :1], goal, sheep, shepherd)
         cands = np.concatenate([cands, strom], axis=1)              # (S, C, 2)
-        C = cands.shape[1]
+        C, D = cands.shape[1], dogs.shape[1]
+        # every herder walks to its place in the formation about the candidate point
+        targets = self._formation(cands.reshape(S * C, 2), np.repeat(P, C, axis=0), D)
+        cost = np.empty(S * C)
+        # in chunks of episodes: a chunk's rollout forms about CHUNK_PAIRS animal pairs
+        step = max(1, int(CHUNK_PAIRS // (C * N * N)))
+        theta = state['online'].theta[live]
+        for a in range(0, S, step):
+            e = slice(a, min(a + step, S))
+            k = slice(e.start * C, e.stop * C)
+            cost[k] = self._rollout_cost(P[e], last[e], dogs[e], theta[e], targets[k], goal,
+                                         shepherd.speed)
+        best = cands[np.arange(S), np.argmin(cost.reshape(S, C), axis=1)]
+        for k, s in enumerate(live):
+            plans[int(s)] = best[k]
+        return self._formation(best, P, D)
+
+    def _rollout_cost(self, P, last, dogs, theta, targets, goal, speed):
+        """The cost of each candidate (S·C,) of S episodes: the learned law run ``horizon``
+        steps as fitted (u^{τ+1} = ā u^τ + forces at τ: the herd and the herders a step
+        back; ``last`` the animals and herders at the previous step) with every herder
+        walking to its ``targets`` (S·C, D, 2) at ``speed``; the predicted mean distance of
+        the animals to the goal plus half the largest."""
+        S, N, _ = P.shape
+        C = len(targets) // S
 
         def each(a):                                                # (S, ...) -> (S·C, ...)
             return np.repeat(a[:, None], C, axis=1).reshape((S * C,) + a.shape[1:])
 
-        # the law as fitted: u^{τ+1} = ā u^τ + forces at τ (the herd and the dog a step back)
         Pk, Uk = each(P), each(P - last[:, :N])
-        dk, d_back = each(dogs[:, :1]), each(last[:, N:N + 1])
-        theta = each(state['online'].theta[live])
-        target = cands.reshape(S * C, 1, 2)
+        dk, d_back = each(dogs), each(last[:, N:])
+        theta = each(theta)
         for _ in range(self.horizon):
             Uk = self.response.velocity(Pk - Uk, Uk, d_back, theta)
             Pk = Pk + Uk
-            gap = target - dk
+            gap = targets - dk
             dist = np.sqrt((gap ** 2).sum(-1, keepdims=True))
             d_back = dk
-            dk = dk + np.minimum(shepherd.speed, dist) * gap / np.maximum(dist, 1e-9)
-        d = np.sqrt(((Pk - np.asarray(goal)) ** 2).sum(-1)).reshape(S, C, N)
-        cost = d.mean(-1) + 0.5 * d.max(-1)
-        best = cands[np.arange(S), np.argmin(cost, axis=1)]
-        for k, s in enumerate(live):
-            plans[int(s)] = best[k]
-        return self._formation(best, P, dogs.shape[1])
+            dk = dk + np.minimum(speed, dist) * gap / np.maximum(dist, 1e-9)
+        d = np.sqrt(((Pk - np.asarray(goal)) ** 2).sum(-1))
+        return d.mean(-1) + 0.5 * d.max(-1)
 
     def _formation(self, points, P, D):
         """The herders' targets: the planned point, or with D herders an arc of ± arc about
