@@ -1,10 +1,12 @@
 """Herding on a full ROS 2 Jazzy install: robots drive simulated sheep into a goal circle.
 
     ros2 launch herd_ros herding.launch.py [animals:=14] [herders:=1] [rate:=10.0] [seed:=0]
+        [herder:=strombom|model]
 
 herd_sim (Strömbom's sheep, fleeing every robot of /fleet/poses; publishes /herd/poses and
-drives /clock, rate × real time) → controller (mode herding: Strömbom's shepherd; goal,
-herd centre and targets as RViz markers on /herding/markers) → fleet_sim (the herders;
+drives /clock, rate × real time) → controller (mode herding: Strömbom's shepherd, or the
+model herder with ``herder:=model``; goal, herd centre and targets as RViz markers on
+/herding/markers) → fleet_sim (the herders;
 /fleet/<robot>/odom, /fleet/poses). The parameters come from
 :func:`herd_ros.herding.live_graph.herding_parameters`, the function ``herd-ros demo
 --herding`` runs the same graph with; each node also reads its config/*.yaml (the
@@ -30,7 +32,7 @@ def _graph(context):
     def arg(name, kind):
         return kind(LaunchConfiguration(name).perform(context))
     params = herding_parameters(arg('animals', int), arg('herders', int), arg('rate', float),
-                                arg('seed', int))
+                                arg('seed', int), herder=arg('herder', str))
     return [Node(package='herd_ros', executable=name, name=name, output='screen',
                  parameters=[str(share / 'config' / CONFIG[name]),
                              params[name]['ros__parameters']])
@@ -46,5 +48,7 @@ def generate_launch_description():
                               description='simulated seconds per wall second'),
         DeclareLaunchArgument('seed', default_value='0',
                               description="seed of the sheep's start and noise"),
+        DeclareLaunchArgument('herder', default_value='strombom',
+                              description="the robots' policy: strombom or model"),
         OpaqueFunction(function=_graph),
     ])

@@ -69,6 +69,10 @@ def add_arguments(p):
                    help='--herding: number of animals (default 14)')
     p.add_argument('--herders', type=int, default=1,
                    help='--herding: number of robots herding (default 1)')
+    p.add_argument('--herder', choices=('strombom', 'model'), default='strombom',
+                   help="--herding: the robots' policy: strombom (Strömbom et al. 2014's "
+                        "shepherd) or model (the learned response, refitted online; "
+                        "learned at start, Strömbom's meanwhile) (default: strombom)")
     p.add_argument('--offline', action='store_true',
                    help='offline pipeline instead: ingest, batch fit, validation, simulation')
 
@@ -133,7 +137,7 @@ def run_herding(args) -> int:
     if args.animals < 2 or args.herders < 1:
         raise HerdInputError('--animals must be at least 2 and --herders at least 1')
     s = run_herding_demo(args.out, n_animals=args.animals, herders=args.herders, rate=rate,
-                         seed=args.seed)
+                         seed=args.seed, herder=args.herder)
     verdict = (f'the herd is inside the goal after {s["time_s"]:.0f} s' if s['success'] else
                f'the herd is not home within {s["budget_s"]:.0f} s '
                f'({s["final_inside"]} of {s["n_animals"]} inside)')

@@ -61,7 +61,8 @@ class HerdingRecorder:
 
 
 def run_herding_demo(out_dir, n_animals: int = 14, herders: int = 1, rate: float = 20.0,
-                     seed: int = 0, log=print, progress_period_s: float = 5.0) -> dict:
+                     seed: int = 0, log=print, progress_period_s: float = 5.0,
+                     herder: str = 'strombom') -> dict:
     """Run the herding graph until the herd is home or the budget is spent; returns the
     summary written to ``out_dir/summary.json``."""
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -82,13 +83,14 @@ def run_herding_demo(out_dir, n_animals: int = 14, herders: int = 1, rate: float
 
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    params = herding_parameters(n_animals, herders, rate, seed)
+    params = herding_parameters(n_animals, herders, rate, seed, herder=herder)
     params_file = out / 'herding_parameters.yaml'
     params_file.write_text(dump_yaml(params))
     budget = budget_s(n_animals)
     robots, animals = robot_names(herders), animal_names(n_animals)
     log(f'graph: herd_sim ({n_animals} animals, driving /clock at {rate:g}x) -> controller '
-        f'(mode herding, {herders} herder{"s" * (herders > 1)}) -> fleet_sim; goal {list(GOAL)} '
+        f'(mode herding, {herder}, {herders} herder{"s" * (herders > 1)}) -> fleet_sim; '
+        f'goal {list(GOAL)} '
         f'radius {GOAL_RADIUS:g} m; budget {budget:.0f} s simulated; parameters: '
         f'{params_file}')
     rclpy.init(args=['--ros-args', '--params-file', str(params_file)])
@@ -151,7 +153,7 @@ def run_herding_demo(out_dir, n_animals: int = 14, herders: int = 1, rate: float
         'final_max_distance_m': float(np.nanmax(dist)), 'snapshots': int(len(times)),
         'marker_messages': int(markers),
         'rate': rate, 'seed': seed, 'wall_time_s': time.monotonic() - t0,
-        'herder': 'strombom', 'files': ['herding_herd.csv', 'herding_robots.csv',
+        'herder': herder, 'files': ['herding_herd.csv', 'herding_robots.csv',
                                         'herding.png', 'herding_parameters.yaml']}
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     _figure(out / 'herding.png', herd, rob, GOAL, GOAL_RADIUS, summary)

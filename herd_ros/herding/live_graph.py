@@ -34,11 +34,15 @@ def budget_s(n_animals: int) -> float:
 
 
 def herding_parameters(n_animals: int = 14, herders: int = 1, rate: float = 10.0,
-                       seed: int = 0, n_neighbours: int = 0, noise: float = 0.3) -> dict:
+                       seed: int = 0, n_neighbours: int = 0, noise: float = 0.3,
+                       herder: str = 'strombom') -> dict:
     """{node: {'ros__parameters': {...}}} for herd_sim, fleet_sim and controller (each
-    node also reads its ``config/<node>.yaml``; these override it)."""
+    node also reads its ``config/<node>.yaml``; these override it); ``herder``: the
+    controller's policy, ``strombom`` or ``model``."""
     if n_animals < 2 or herders < 1 or not rate > 0:
         raise ValueError('n_animals >= 2, herders >= 1 and rate > 0 needed')
+    if herder not in ('strombom', 'model'):
+        raise ValueError(f'herder must be strombom or model, got {herder!r}')
     robots = robot_names(herders)
     poses = []
     for k in range(herders):
@@ -56,5 +60,6 @@ def herding_parameters(n_animals: int = 14, herders: int = 1, rate: float = 10.0
         'controller': {'ros__parameters': {
             'use_sim_time': True, 'robots': robots, 'mode': 'herding', 'rate_hz': 5.0,
             'max_speed': HERDER_SPEED, 'herder_speed': HERDER_SPEED, 'goal': list(GOAL),
-            'goal_radius': GOAL_RADIUS, 'herding_seed': int(seed), 'odom_timeout_s': 2.0}},
+            'goal_radius': GOAL_RADIUS, 'herding_seed': int(seed), 'odom_timeout_s': 2.0,
+            'herder': herder}},
     }

@@ -2,16 +2,27 @@
 circle (issue 27).
 
 Each tick the policy takes the latest animal positions (NaN ones ignored) and the robots'
-odometry, and Strömbom's shepherd (:func:`herd_ros.herding.strombom.strombom_targets`:
-collect the furthest animal while the herd is not gathered, drive from behind its centre
-otherwise; several robots collect the furthest few and drive from an arc) gives each robot
-a target; :func:`~herd_ros.herding.strombom.herder_velocities` turns it into a velocity of
+odometry, and the ``herder`` gives each robot a target:
+
+* ``strombom``: Strömbom's shepherd (:func:`herd_ros.herding.strombom.strombom_targets`:
+  collect the furthest animal while the herd is not gathered, drive from behind its centre
+  otherwise; several robots collect the furthest few and drive from an arc);
+* ``model``: the model herder (:class:`herd_ros.herding.model_herder.ModelHerder`,
+  receding-horizon control over the animals' learned response to the robots). At the first
+  herd it learns that response, in a worker thread, from simulated recordings of as many
+  animals and robots (:func:`~herd_ros.herding.model_herder.learn_response`; ~10 s for
+  14 animals; Strömbom's shepherd herds meanwhile), then it is called once per new herd
+  snapshot (the law's 1 s step) and refits the response online from what it sees.
+
+:func:`~herd_ros.herding.strombom.herder_velocities` turns a target into a velocity of
 ``herder_speed`` (with Strömbom's heading noise), zero within ``stop_factor`` r_a of an
 animal. Once every animal is inside the goal the robots hold still. RViz markers on
 ``/herding/markers`` (visualization_msgs/MarkerArray, map frame): the goal circle, the
 herd's centre and each robot's target.
 """
 from __future__ import annotations
+
+import threading
 
 import numpy as np
 from geometry_msgs.msg import PoseArray
@@ -50,6 +61,12 @@ class HerdingPolicy:
         node.create_subscription(PoseArray, self.topic, self.on_poses, 10)
         self.markers_pub = node.create_publisher(MarkerArray, '/herding/markers', 10)
         self.status = f'waiting for the animals on {self.topic}'
+        self.herder = str(p['herder'])
+        self.model = None                 # the ModelHerder, once learned
+        self._learning = None             # the thread learning it: {'herder' | 'error': ...}
+        self._model_state: dict = {}
+        self._planned_update = -1
+        self._model_targets = None
 
     @classmethod
     def from_node(cls, node) -> 'HerdingPolicy':
@@ -63,7 +80,7 @@ class HerdingPolicy:
         self.updates += 1
 
     def command(self, state) -> np.ndarray:
-        """World velocities (R, 2) of Strömbom's shepherd; zero once the herd is home."""
+        """World velocities (R, 2) of the herder; zero once the herd is home."""
         out = np.full_like(state.positions, np.nan)
         present = state.active & np.isfinite(state.positions).all(axis=1)
         P = self.animals
@@ -79,17 +96,72 @@ class HerdingPolicy:
             targets, driving = strombom_targets(P[None], dogs[None], self.goal, self.sheep,
                                                 self.shepherd)
             self.phase = 'driving' if driving[0] else 'collecting'
+            planned = self._planned(P, dogs) if self.herder == 'model' else None
+            if planned is not None:
+                targets, self.phase = planned, 'planning'
             self.targets = targets[0]
             out[present] = herder_velocities(dogs[None], targets, P[None], self.sheep,
                                              self.shepherd, self.rng, state.period)[0]
+        learning = (' (Strömbom\'s shepherd while the model herder learns the response)'
+                    if self.herder == 'model' and self.model is None and
+                    self._learning is not None and not self._learning.get('failed') else '')
         self.status = {'home': 'the herd is inside the goal: holding still',
                        'driving': 'driving the herd to the goal',
-                       'collecting': 'collecting a straggler'}[self.phase] + \
-            f' ({len(P)} animals, goal {self.goal.tolist()} r {self.radius:g} m)'
+                       'collecting': 'collecting a straggler',
+                       'planning': 'the model herder drives the herd to the goal'}[self.phase] + \
+            learning + f' ({len(P)} animals, goal {self.goal.tolist()} r {self.radius:g} m)'
         if state.time - self._last_markers >= self.markers_period - 1e-9:
             self._last_markers = state.time
             self.publish_markers(P)
         return out
+
+    def _learn(self, n_animals: int, n_robots: int):
+        """Learn the model herder in a worker thread (module docstring)."""
+        from herd_ros.herding.benchmark import Setting
+        from herd_ros.herding.model_herder import ModelHerder, learn_response, record_episodes
+        box = {}
+
+        def work():
+            try:
+                setting = Setting(n_animals, n_robots)
+                box['herder'] = ModelHerder(learn_response(record_episodes(setting)))
+            except Exception as exc:        # noqa: BLE001 (reported once; Strömbom herds on)
+                box['error'] = f'{type(exc).__name__}: {exc}'
+        self.node.get_logger().info(
+            f'herding: learning the response of {n_animals} animals to {n_robots} '
+            f'robot{"s" * (n_robots > 1)} from simulated recordings; Strömbom\'s shepherd '
+            'herds meanwhile')
+        box['thread'] = threading.Thread(target=work, name='herding-learn', daemon=True)
+        box['thread'].start()
+        return box
+
+    def _planned(self, P: np.ndarray, dogs: np.ndarray):
+        """The model herder's targets (1, R, 2), or None while it learns (or if it could
+        not): replanned once per new herd snapshot."""
+        if self.model is None:
+            if self._learning is None:
+                self._learning = self._learn(len(P), len(dogs))
+            box = self._learning
+            if box['thread'].is_alive() or box.get('failed'):
+                return None
+            if 'error' in box:
+                box['failed'] = True
+                self.node.get_logger().error(
+                    f'herding: the model herder could not learn ({box["error"]}); '
+                    'Strömbom\'s shepherd herds on')
+                return None
+            self.model = box['herder']
+            self.node.get_logger().info('herding: the model herder drives from now on')
+        if self.updates != self._planned_update or self._model_targets is None:
+            self._planned_update = self.updates
+            st = self._model_state
+            if st.get('shape') != (len(P), len(dogs)):      # an animal or robot came or went
+                st.clear()
+                st['shape'] = (len(P), len(dogs))
+            st['live'] = np.zeros(1, np.int64)
+            self._model_targets = self.model(P[None], dogs[None], self.goal, self.sheep,
+                                             self.shepherd, st)
+        return self._model_targets
 
     def publish_markers(self, P: np.ndarray):
         """Publish the goal, the herd's centre and each robot's target on /herding/markers."""

@@ -379,14 +379,20 @@ HERDING = {
     'herder': Param(
         'strombom',
         "the herders' policy",
-        choices=('strombom',),
+        choices=('strombom', 'model'),
         doc=('\n'
              "The herders' policy: strombom (Strömbom et al. 2014: collect the "
              "animal furthest from\n"
              "the herd's centre while the herd is not gathered, else drive from "
              'behind the centre;\n'
              'several robots collect the furthest few and drive from an arc, '
-             'herd_ros/herding/strombom.py).')),
+             'herd_ros/herding/strombom.py),\n'
+             "or model (receding-horizon control over the animals' learned "
+             'response to the robots,\n'
+             'learned at start from simulated recordings of as many animals and '
+             'robots, Strömbom\'s\n'
+             'shepherd herding meanwhile, then refitted online from /herd/poses: '
+             'herd_ros/herding/model_herder.py).')),
     'herd_topic': Param(
         '/herd/poses',
         'PoseArray of the animals (map frame; NaN = missing)'),
