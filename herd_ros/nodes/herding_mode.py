@@ -159,8 +159,15 @@ class HerdingPolicy:
                 st.clear()
                 st['shape'] = (len(P), len(dogs))
             st['live'] = np.zeros(1, np.int64)
-            self._model_targets = self.model(P[None], dogs[None], self.goal, self.sheep,
-                                             self.shepherd, st)
+            try:
+                self._model_targets = self.model(P[None], dogs[None], self.goal, self.sheep,
+                                                 self.shepherd, st)
+            except Exception as exc:        # noqa: BLE001 (reported once; Strömbom herds on)
+                self._learning['failed'], self.model = True, None
+                self.node.get_logger().error(
+                    f'herding: the model herder failed ({type(exc).__name__}: {exc}); '
+                    'Strömbom\'s shepherd herds on')
+                return None
         return self._model_targets
 
     def publish_markers(self, P: np.ndarray):
