@@ -88,6 +88,14 @@ def test_herding_command_writes_the_summary_figure_and_gif(tmp_path, capsys):
     assert len(err) == 1 and 'wolf' in err[0]
 
 
+def test_herding_command_runs_the_model_herder_with_and_without_the_online_refit(tmp_path):
+    out = tmp_path / 'm'
+    assert main(['herding', '--out', str(out), '--animals', '6', '--herder',
+                 'model,model-offline', '--seeds', '2', '--no-gif']) == 0
+    rows = json.loads((out / 'summary.json').read_text())['runs']
+    assert [r['herder'] for r in rows] == ['model', 'model-offline']
+
+
 @pytest.fixture(scope='module')
 def learned():
     from herd_ros.herding.model_herder import learn_response, record_episodes

@@ -15,7 +15,7 @@ from herd_ros.errors import HerdInputError
 
 HELP = ('herding benchmark: herders (Strömbom\'s shepherd, ...) drive simulated herds into a '
         'goal; success rates with Wilson intervals, figure and GIF')
-HERDERS = ('strombom', 'model')
+HERDERS = ('strombom', 'model', 'model-offline')
 
 
 def _values(text: str, option: str, kind=int) -> list:
@@ -49,7 +49,8 @@ def add_arguments(p):
     p.add_argument('--herder', default='strombom',
                    help='herders to compare, comma-separated, of: strombom (Strömbom et al. '
                         '2014\'s shepherd), model (receding-horizon control over the '
-                        'learned response to the dog, refitted online while it herds)')
+                        'learned response to the dog, refitted online while it herds), '
+                        'model-offline (the same without the online refit)')
     p.add_argument('--no-gif', action='store_true', help='skip episode.gif')
 
 
@@ -73,14 +74,15 @@ def settings_of(args):
     return out
 
 
-def model_herder(setting):
+def model_herder(setting, adapt: bool = True):
     """The model herder of a setting: its response learned from recorded episodes of
-    Strömbom's sheep with the setting's size, herders, noise and cohesion."""
+    Strömbom's sheep with the setting's size, herders, noise and cohesion; refitted online
+    in every episode unless ``adapt`` is False (``--herder model-offline``)."""
     from herd_ros.herding.benchmark import Setting
     from herd_ros.herding.model_herder import ModelHerder, learn_response, record_episodes
     learn_on = Setting(setting.n_animals, setting.n_herders, setting.noise,
                        setting.n_neighbours)
-    return ModelHerder(learn_response(record_episodes(learn_on)))
+    return ModelHerder(learn_response(record_episodes(learn_on)), adapt=adapt)
 
 
 def run(args) -> int:
@@ -98,7 +100,8 @@ def run(args) -> int:
     rows, shown = [], {}
     for st in settings:
         for name in herders:
-            policy = strombom_herder if name == 'strombom' else model_herder(st)
+            policy = (strombom_herder if name == 'strombom' else
+                      model_herder(st, adapt=name == 'model'))
             bar = progress(total=st.budget, desc=f'{name} {st.label()}', unit='step')
             result = run_episodes(st, policy, range(args.seeds),
                                   record=0 if not shown.get(name) else None,
@@ -110,7 +113,7 @@ def run(args) -> int:
             rows.append(row)
             t = (f'{row["median_time_s"]:.0f} s' if row['median_time_s'] is not None
                  else '-')
-            print(f'{st.label():<34} {name:<10} success {row["success"]:6.1%} '
+            print(f'{st.label():<34} {name:<13} success {row["success"]:6.1%} '
                   f'[{row["ci"][0]:.1%}, {row["ci"][1]:.1%}]  median time {t:>7}  '
                   f'spread {row["mean_spread_m"]:5.1f} m  path {row["herder_path_m"]:6.0f} m',
                   flush=True)
