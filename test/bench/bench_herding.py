@@ -6,8 +6,8 @@ success rate (Wilson 95 % interval), median time, spread, path.
 Settings (N animals, herders, noise e, cohesion n, the animals' law): N = 14 at e = 0.3,
 0.6 and 1.0, with 1 and 3 herders, Strömbom's sheep and the herd-law family (which the model
 herder, fitted on Strömbom's sheep, was not told); cohesion n = N/2, 6, 5 and 3
-(short-range; 50 episodes: a failing episode runs its whole budget); N = 46 at e = 0.3
-(100 episodes); N = 100 with 3 herders (20 episodes: the planner forms every pair of 100
+(short-range; 50 episodes: a failing episode runs its whole budget); N = 46 at e = 0.3;
+N = 100 with 3 herders (20 episodes: the planner forms every pair of 100
 animals for 13 candidates × 25 steps, ~17 s of planning per episode).
 
     .venv/bin/python test/bench/bench_herding.py [--seeds 200]
@@ -27,7 +27,7 @@ from herd_ros.herding.benchmark import (Setting, run_episodes, strombom_herder, 
 SETTINGS = ((Setting(14, 1, 0.3), 1.0), (Setting(14, 1, 0.6), 1.0), (Setting(14, 1, 1.0), 1.0),
             (Setting(14, 3, 0.3), 1.0), (Setting(14, 1, 0.3, family='herd-law'), 1.0),
             (Setting(14, 1, 0.3, 6), 1.0), (Setting(14, 1, 0.3, 5), 1.0),
-            (Setting(14, 1, 0.3, 3), 0.25), (Setting(46, 1, 0.3), 0.5),
+            (Setting(14, 1, 0.3, 3), 0.25), (Setting(46, 1, 0.3), 1.0),
             (Setting(100, 3, 0.3), 0.1))
 
 
