@@ -38,7 +38,7 @@ import numpy as np
 import yaml
 
 from herd_ros.errors import HerdInputError
-from herd_ros.herd_setup import HerdSetup
+from herd_ros.herd_setup import HerdSetup, divides
 
 FORMAT_VERSION = 1
 
@@ -181,8 +181,7 @@ def read_herd_file(path) -> tuple[HerdSetup, Path | None]:
         if not ok:
             raise HerdInputError(f'{w}: {key} must be a positive number, got {value!r}')
     clock_dt = float(herd.get('clock_dt', dt))
-    if not (math.isfinite(clock_dt) and 0 < clock_dt <= dt
-            and abs(dt / clock_dt - round(dt / clock_dt)) < 1e-9):
+    if not (math.isfinite(clock_dt) and divides(clock_dt, dt)):
         raise HerdInputError(f'{w}: herd.clock_dt must divide herd.dt ({dt:g} s), got '
                              f'{herd.get("clock_dt")!r}')
     bag = data.get('bag') or None

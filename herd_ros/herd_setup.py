@@ -127,13 +127,18 @@ def _margin(lo, hi, fraction=0.1, least=10.0):
     return max(least, fraction * (hi - lo))
 
 
+def divides(step: float, dt: float) -> bool:
+    """Whether a clock of ``step`` ticks at every multiple of ``dt`` (dt / step whole)."""
+    return 0 < step <= dt * (1 + 1e-12) and abs(dt / step - round(dt / step)) < 1e-9
+
+
 def herd_clock_step(dt: float, track: float, min_dt: float = 0.0) -> float:
     """The step of /herd/poses for a model step ``dt``: the largest round step
     (:data:`~herd_ros.ingest.pipeline.NICE_STEPS`) that divides ``dt``, is at least
     ``min_dt`` and at most ``track`` (the track's clock); ``dt`` when there is none."""
     from herd_ros.ingest.pipeline import NICE_STEPS
     ok = [c for c in NICE_STEPS if max(min_dt, 0.0) <= c <= min(dt, track) + 1e-9
-          and abs(dt / c - round(dt / c)) < 1e-9]
+          and divides(c, dt)]
     return float(max(ok)) if ok else float(dt)
 
 

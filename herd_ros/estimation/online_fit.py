@@ -275,8 +275,7 @@ class OnlineHerdEstimator:
         from herd_ros.estimation.online_regimes import ResidualWindow
         self.residual_window = (ResidualWindow(len(agents), regime_window)
                                 if int(regime_window) > 0 else None)
-        self.noise_regimes = None          # (covariances (N, K, 2, 2), transition (N, K, K))
-        self._reset_stream()
+        self._reset_stream()      # (sets noise_regimes: (covariances, transition) or None)
 
     def structure(self):
         """The :class:`~herd_ros.model.model_structure.ModelStructure` a reader of
@@ -310,7 +309,7 @@ class OnlineHerdEstimator:
         self.session = {'first_time': None, 'last_time': None, 'snapshots': 0}
         self.skill_sq = np.zeros((3, n))
         self.skill_n = np.zeros(n)
-        if getattr(self, 'residual_window', None) is not None:
+        if self.residual_window is not None:
             self.residual_window.clear()
         self.noise_regimes = None
 
@@ -596,6 +595,14 @@ class OnlineHerdEstimator:
         cov, trans, fit = got
         self.noise_regimes = (cov, trans) if fit['n_regimes'] > 1 else None
         return fit
+
+    def published_regimes(self):
+        """(covariances (N, K, 2, 2), transition (N, K, K)) of the noise as it is published:
+        the fitted regimes, or Q_i as one regime (Gaussian noise) when one was kept."""
+        if self.noise_regimes is not None:
+            return self.noise_regimes
+        n = len(self.agents)
+        return self.rls.noise_cov().reshape(n, 1, 2, 2), np.ones((n, 1, 1))
 
     def model(self, frame_id: str = 'map', datum=None):
         """The current estimate as a model (HerdModel or SharedLawModel), lazily pruned;

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from herd_ros.errors import HerdInputError
-from herd_ros.model.noise_regimes import REGIME_COUNTS, fit_herd_regimes
+from herd_ros.model.noise_regimes import REGIME_COUNTS, check_regimes, fit_herd_regimes
 
 #: residuals an agent needs in the window before the first regime fit (a two-regime chain
 #: has five parameters per agent; 120 steps hold a few rests and moves of a minute or two)
@@ -118,7 +118,6 @@ def unpack_regimes(rows, n_agents: int, where: str = '/herd/model/noise_regimes'
     """(covariances (N, K, 2, 2), transition (N, K, K)) from :func:`pack_regimes`' rows
     ((N, K, 4 + K), or flat with K implied); one clear HerdInputError when they do not fit
     ``n_agents`` agents or are not covariances and transition probabilities."""
-    from herd_ros.model.noise_regimes import check_regimes
     a = np.asarray(rows, dtype=float).ravel()
     n = int(n_agents)
     k = 0

@@ -227,7 +227,8 @@ class ModelHerder:
         state['t'] = t + 1
         plans = state.setdefault('plans', {})
         if t % self.replan and all(int(s) in plans for s in live):
-            return self._formation(np.stack([plans[int(s)] for s in live]), P, dogs.shape[1])
+            return self._formation(np.stack([plans[int(s)] for s in live]),
+                                   P.mean(axis=1), dogs.shape[1])
         S, N, _ = P.shape
         gcm = P.mean(axis=1)
         ang = np.linspace(0, 2 * np.pi, self.candidates, endpoint=False)
@@ -237,7 +238,7 @@ class ModelHerder:
         cands = np.concatenate([cands, strom], axis=1)              # (S, C, 2)
         C, D = cands.shape[1], dogs.shape[1]
         # every herder walks to its place in the formation about the candidate point
-        targets = self._formation(cands.reshape(S * C, 2), np.repeat(P, C, axis=0), D)
+        targets = self._formation(cands.reshape(S * C, 2), np.repeat(gcm, C, axis=0), D)
         cost = np.empty(S * C)
         # in chunks of episodes: a chunk's rollout forms about CHUNK_PAIRS animal pairs
         step = max(1, int(CHUNK_PAIRS // (C * N * N)))
@@ -250,7 +251,7 @@ class ModelHerder:
         best = cands[np.arange(S), np.argmin(cost.reshape(S, C), axis=1)]
         for k, s in enumerate(live):
             plans[int(s)] = best[k]
-        return self._formation(best, P, D)
+        return self._formation(best, gcm, D)
 
     def _rollout_cost(self, P, last, dogs, theta, targets, goal, speed):
         """The cost of each candidate (S·C,) of S episodes: the learned law run ``horizon``
@@ -277,12 +278,11 @@ class ModelHerder:
         d = np.sqrt(((Pk - np.asarray(goal)) ** 2).sum(-1))
         return d.mean(-1) + 0.5 * d.max(-1)
 
-    def _formation(self, points, P, D):
+    def _formation(self, points, gcm, D):
         """The herders' targets: the planned point, or with D herders an arc of ± arc about
-        it as seen from the herd's centre."""
+        it as seen from the herd's centre ``gcm`` (one per point)."""
         if D == 1:
             return points[:, None, :]
-        gcm = P.mean(axis=1)
         rel = points - gcm
         a = np.linspace(-self.arc, self.arc, D)
         c, s = np.cos(a), np.sin(a)

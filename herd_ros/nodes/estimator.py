@@ -221,12 +221,7 @@ class Estimator(Node):
         from herd_ros.estimation.online_regimes import pack_regimes
         self.counts['regime_fits'] += 1
         k = fit['n_regimes']
-        if self.core.noise_regimes is not None:
-            cov, trans = self.core.noise_regimes
-        else:
-            n = len(self.core.agents)
-            cov, trans = self.core.rls.noise_cov().reshape(n, 1, 2, 2), np.ones((n, 1, 1))
-        self.regimes_pub.publish(tensor_message(pack_regimes(cov, trans),
+        self.regimes_pub.publish(tensor_message(pack_regimes(*self.core.published_regimes()),
                                                 ('agent', 'regime', 'q4_transition')))
         if k != self.regimes_said:
             self.regimes_said = k
