@@ -58,6 +58,11 @@ class Feeder:
         self.samples = {}
         self.received = -1  # snapshots the estimator reports having received
         node.create_subscription(Float64MultiArray, '/herd/model/params', self._on_params, 10)
+        self.home = self.place = None
+        node.create_subscription(Float64MultiArray, '/herd/model/home',
+                                 lambda msg: setattr(self, 'home', msg), 10)
+        node.create_subscription(Float64MultiArray, '/herd/model/place',
+                                 lambda msg: setattr(self, 'place', msg), 10)
         self.structure = None      # latched: a subscriber that joins late still gets it
         node.create_subscription(String, '/herd/model/structure', self._on_structure,
                                  QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -173,6 +178,10 @@ def test_node_converges_to_the_truth(ros, herd, console_script, tmp_path):
         assert feeder.spin(60.0, lambda: min(feeder.samples.get(a, 0) for a in run.agents)
                            >= 0.9 * sent_updates), feeder.samples
         assert feeder.spin(5.0, lambda: feeder.params is not None)
+        settled, end = None, time.monotonic() + 20.0     # until every snapshot is learned
+        while settled != dict(feeder.samples) and time.monotonic() < end:
+            settled = dict(feeder.samples)
+            feeder.spin(1.0)
         dims = feeder.params.layout.dim
         assert [d.label for d in dims] == ['agent', 'param']
         theta = np.array(feeder.params.data).reshape(dims[0].size, dims[1].size)
@@ -184,6 +193,44 @@ def test_node_converges_to_the_truth(ros, herd, console_script, tmp_path):
         assert st.field_grid == GRID and st.field_bounds == BOUNDS
         assert st.dt == pytest.approx(float(run.times[1] - run.times[0]))
         assert theta.shape == (len(run.agents), st.n_params)
+        # the published field is the file's: a centre whose cell an animal visited fewer
+        # than min_visits (10) times is 0 (counted here from the positions sent)
+        n, K = len(run.agents), GRID[0] * GRID[1]
+        cell_w, cell_h = (BOUNDS[1] - BOUNDS[0]) / GRID[0], (BOUNDS[3] - BOUNDS[2]) / GRID[1]
+        for i in range(n):
+            p = run.positions[:-2, i]
+            cells = (np.floor((p[:, 1] - BOUNDS[2]) / cell_h) * GRID[0]
+                     + np.floor((p[:, 0] - BOUNDS[0]) / cell_w)).astype(int)
+            rare = np.bincount(cells, minlength=K)[:K] < 10
+            assert rare.any()
+            field = theta[i, 2 * n - 1:].reshape(2, K)
+            assert (field[:, rare] == 0.0).all() and (field[:, ~rare] != 0.0).any()
+        # each animal's range and home pull: μ_i and Σ_i the mean and covariance of its
+        # positions, K_i = Δt/(2(1 − a_i)) Q_i Σ_i⁻¹ (space_use_field, S2) — here from the
+        # truth's a_i, Q_i
+        assert feeder.spin(5.0, lambda: feeder.home is not None)
+        dims = feeder.home.layout.dim
+        assert [d.label for d in dims] == ['agent', 'mux_muy_kxx_kxy_kyx_kyy_sxx_sxy_syx_syy']
+        home = np.array(feeder.home.data).reshape(n, 10)
+        for i, a in enumerate(run.agents):
+            p = run.positions[:, i]
+            np.testing.assert_allclose(home[i, :2], p.mean(axis=0), atol=0.05 * p.std())
+            sigma = np.cov(p.T)
+            np.testing.assert_allclose(home[i, 6:].reshape(2, 2), sigma,
+                                       rtol=0.2, atol=0.1 * np.abs(sigma).max())
+            law = truth.laws[a]
+            expected = st.dt / (2 * (1 - law.damping)) * law.noise_cov @ np.linalg.inv(sigma)
+            np.testing.assert_allclose(home[i, 2:6].reshape(2, 2), expected,
+                                       rtol=0.15, atol=0.05 * np.abs(expected).max())
+        # ... and its place in the herd: the same for its offset from the others' centroid
+        assert feeder.place is not None
+        place = np.array(feeder.place.data).reshape(n, 10)
+        offsets = run.positions - (run.positions.sum(1, keepdims=True) - run.positions) / (n - 1)
+        for i in range(n):
+            d = offsets[:, i]
+            np.testing.assert_allclose(place[i, :2], d.mean(axis=0), atol=0.05 * d.std())
+            np.testing.assert_allclose(place[i, 6:].reshape(2, 2), np.cov(d.T),
+                                       rtol=0.2, atol=0.1 * np.abs(np.cov(d.T)).max())
         result = feeder.call_save()
         assert result.success, result.message
         # the stop-and-go noise, refitted every regime_refit_every updates: the truth's noise

@@ -307,6 +307,51 @@ def test_live_noise_regimes_from_the_estimator_topic(graph):
         [s.message for _, d in diags[-3:] for s in d.status]
 
 
+def test_live_home_pull_from_the_estimator_topic(graph):
+    # each animal's home pull (/herd/model/home) joins the robots' law: a law of damping
+    # alone leaves robots standing until the pull arrives, then drives them towards their
+    # animals' ranges
+    g, ear = graph
+    cmds = {r: ear.record(Twist, f'/fleet/{r}/cmd_vel') for r in ('r1', 'r2')}
+    g.start('controller', '--params-file', str(CONFIG / 'controller.yaml'),
+            '-p', 'robots:=[r1, r2]', '-p', 'model_source:=topic', '-p', 'max_speed:=0.8')
+    model = make_truth_model(3, seed=1)
+    theta = np.stack([model.laws[a].theta for a in model.agents])
+    theta[:, 1:] = 0.0                           # no pair law, no field: damping alone
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    structure = ModelStructure(tuple(model.agents), 1.0, 'pairwise', (6, 6),
+                               (-150.0, 150.0, -150.0, 150.0), 60.0, 6)
+    ear.node.create_publisher(String, '/herd/model/structure', latched).publish(
+        String(data=structure.to_json()))
+    from herd_ros.nodes.ros_common import tensor_message as matrix
+    params = ear.node.create_publisher(Float64MultiArray, '/herd/model/params', 10)
+    home = ear.node.create_publisher(Float64MultiArray, '/herd/model/home', 10)
+    odom_pubs = {r: ear.node.create_publisher(Odometry, f'/fleet/{r}/odom', 10)
+                 for r in ('r1', 'r2')}
+
+    def publish_odom():
+        for r, y in (('r1', -1.0), ('r2', 1.0)):
+            msg = Odometry()
+            msg.header.frame_id = 'map'
+            msg.pose.pose.position.y = y
+            msg.pose.pose.orientation.w = 1.0
+            odom_pubs[r].publish(msg)
+    ear.node.create_timer(0.05, publish_odom)
+    ear.node.create_timer(0.3, lambda: params.publish(matrix(theta, ('agent', 'param'))))
+    assert ear.spin(15.0, until=lambda: len(cmds['r1']) > 20)
+    assert all(abs(m.linear.x) < 1e-9 for _, m in cmds['r1'][-5:]), 'moved without a pull'
+    # centres 30 m east (r1's animal) and 30 m west (r2's), gain 0.05 per step, ranges of
+    # std 2 m (the robots, 30 m off, are far beyond their edge)
+    rows = np.zeros((3, 10))
+    rows[:, 0] = [30.0, -30.0, 0.0]
+    rows[:, 2] = rows[:, 5] = 0.05
+    rows[:, 6] = rows[:, 9] = 4.0
+    ear.node.create_timer(0.3, lambda: home.publish(matrix(rows, ('agent', 'mux'))))
+    assert ear.spin(10.0, until=lambda: cmds['r1'][-1][1].linear.x > 0.05
+                    and cmds['r2'][-1][1].linear.x < -0.05)
+
+
 def test_bad_parameters_exit_with_one_clear_line(ros_env, console_script):
     for name, args, needle in [
             ('fleet_sim', ['-p', 'kinematics:=tank'], 'kinematics'),

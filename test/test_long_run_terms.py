@@ -241,3 +241,143 @@ def test_an_agent_without_enough_data_keeps_its_fitted_field_and_gaussian_noise(
     assert fit['n_regimes'] == 2 and fit['too_few'] == [1]
     flat = fit['agents'][1]['covariances']
     np.testing.assert_allclose(flat[0], flat[1])
+
+
+def test_the_home_gain_is_the_closed_form():
+    # K = Δt/(2(1 − a)) Q Σ⁻¹ (S2), two agents at once: Σ = diag(4, 1), Q = diag(0.1, 0.2),
+    # a = 0.9, Δt = 2 → 10 · diag(0.025, 0.2); the second agent's axes swapped
+    from herd_ros.model.space_use_field import home_gain
+    sigma = np.array([np.diag([4.0, 1.0]), np.diag([1.0, 4.0])])
+    q = np.array([np.diag([0.1, 0.2]), np.diag([0.2, 0.1])])
+    k = home_gain(sigma, np.array([0.9, 0.9]), q, 2.0)
+    np.testing.assert_allclose(k[0], np.diag([0.25, 2.0]))
+    np.testing.assert_allclose(k[1], np.diag([2.0, 0.25]))
+
+
+def test_the_online_estimator_keeps_each_animals_range(tmp_path):
+    # the live home pull: the running mean and covariance of each animal's positions (with
+    # the forgetting factor's weights), none before 10 positions; kept by checkpoints
+    from herd_ros.estimation.online_fit import MIN_HOME_POSITIONS, OnlineHerdEstimator
+    rng = np.random.default_rng(3)
+    steps = 200
+    p = np.stack([rng.normal([10.0, -5.0], [3.0, 1.0], (steps, 2)),
+                  rng.normal([-20.0, 40.0], [1.0, 2.0], (steps, 2))], axis=1)
+    p[50:60, 1] = np.nan                          # the second animal missing a while
+    est = OnlineHerdEstimator(['a', 'b'], 1.0, law='shared', field_grid=(2, 2),
+                              field_bounds=(-50, 50, -50, 50))
+    for k in range(MIN_HOME_POSITIONS - 1):
+        est.add_snapshot(float(k), p[k])
+    assert not est.home_pull()[1].any() and 'space_use_home' not in est.model().meta
+    for k in range(MIN_HOME_POSITIONS - 1, steps):
+        est.add_snapshot(float(k), p[k])
+    a = est.theta[:, 0]
+    q = est.rls.noise_cov()
+    mu, gain, cov = est.home_pull()
+    for i in range(2):
+        pts = p[np.isfinite(p[:, i]).all(axis=1), i]
+        np.testing.assert_allclose(mu[i], pts.mean(axis=0))
+        np.testing.assert_allclose(cov[i], np.cov(pts.T, bias=True), rtol=1e-9)
+        expected = 1.0 / (2.0 * (1.0 - a[i])) * q[i] @ np.linalg.inv(np.cov(pts.T, bias=True))
+        np.testing.assert_allclose(gain[i], expected, rtol=1e-9)
+    # each one's place in the herd: its offset from the other (here: one other)
+    both = np.isfinite(p).all(axis=(1, 2))
+    d = p[both, 0] - p[both, 1]
+    m, k, s = est.herd_place()
+    np.testing.assert_allclose(m, [d.mean(0), -d.mean(0)])
+    np.testing.assert_allclose(s[0], np.cov(d.T, bias=True), rtol=1e-9)
+    # in the model (for its law's damping), and through its file
+    from herd_ros.model.kinds import load, save
+    model = est.model()
+    theta = est.pruned_estimate(est.kept_centers())[0]
+    again_model = load(save(model, tmp_path / 'm.yaml'))
+    for key, want in (('space_use_home', est.home_pull(theta)),
+                      ('herd_place', est.herd_place(theta))):
+        for got in (model.meta[key], again_model.meta[key]):
+            for x, y in zip(got, want):
+                np.testing.assert_allclose(x, y, rtol=1e-9)
+    path = est.save_checkpoint(tmp_path / 'c.npz')
+    again = OnlineHerdEstimator(['a', 'b'], 1.0, law='shared', field_grid=(2, 2),
+                                field_bounds=(-50, 50, -50, 50))
+    assert again.load_checkpoint(path)
+    np.testing.assert_allclose(again.home_pull()[0], mu)
+    # forgetting λ: position k of n weighs λ^(n−1−k)
+    lam = 0.99
+    est = OnlineHerdEstimator(['a', 'b'], 1.0, law='shared', field_grid=(2, 2),
+                              field_bounds=(-50, 50, -50, 50), forgetting=lam)
+    for k in range(steps):
+        est.add_snapshot(float(k), p[k])
+    w = lam ** np.arange(steps - 1, -1, -1.0)
+    np.testing.assert_allclose(est.home_pull()[0][0], (w[:, None] * p[:, 0]).sum(0) / w.sum())
+
+
+def test_the_range_edge_pull_is_zero_inside_and_the_gain_on_the_excess_beyond():
+    # home_drift with a range Σ: −K (p − μ)(1 − 2/r)₊, r the Mahalanobis distance; Σ =
+    # diag(4, 1) (std 2 m and 1 m), K = 0.1 I, μ = (10, 0)
+    from herd_ros.model.space_use_field import home_drift
+    meta = {'space_use_home': (np.array([[10.0, 0.0]]), 0.1 * np.eye(2)[None],
+                               np.diag([4.0, 1.0])[None])}
+    inside = np.array([[[13.9, 0.0]], [[10.0, 1.9]], [[11.0, 1.0]]])   # r = 1.95, 1.9, 1.1
+    assert np.allclose(home_drift(meta, inside), 0.0)
+    # 8 m east: r = 4, half of the linear pull −0.1 · 8; 3 m north: r = 3, a third of −0.3
+    np.testing.assert_allclose(home_drift(meta, np.array([[18.0, 0.0]])), [[-0.4, 0.0]])
+    np.testing.assert_allclose(home_drift(meta, np.array([[10.0, 3.0]])), [[0.0, -0.1]])
+    # without a range: the linear pull (S2) everywhere
+    np.testing.assert_allclose(home_drift({'space_use_home': meta['space_use_home'][:2]},
+                                          np.array([[11.0, 0.0]])), [[-0.1, 0.0]])
+
+
+def test_each_agents_place_in_the_herd_is_its_offset_from_the_others():
+    # c_−i by hand (one agent missing), the offsets' moments, and the edge pull in the herd's
+    # frame: a whole herd moving together feels nothing, one agent leaving its place does
+    from herd_ros.model.herd_place import herd_place, others_centroid, place_drift
+    p = np.array([[0.0, 0.0], [4.0, 0.0], [np.nan, np.nan], [2.0, 6.0]])
+    np.testing.assert_allclose(others_centroid(p)[[0, 1, 3]], [[3.0, 3.0], [1.0, 3.0],
+                                                                [2.0, 0.0]])
+    assert np.isfinite(others_centroid(p)[2]).all()        # a missing agent's others exist
+    rng = np.random.default_rng(0)
+    steps = 4000
+    drift = np.cumsum(rng.normal(0.0, 2.0, (steps, 1, 2)), axis=0)       # the herd travels
+    slots = np.array([[-10.0, 0.0], [10.0, 0.0], [0.0, 15.0]])
+    wobble = rng.normal(0.0, 1.0, (steps, 3, 2))
+    positions = drift + slots + wobble
+    mean, gain, cov = herd_place(positions, np.full(3, 0.9), np.tile(np.eye(2), (3, 1, 1)),
+                                 1.0)
+    d = positions - (positions.sum(1, keepdims=True) - positions) / 2.0
+    for i in range(3):
+        np.testing.assert_allclose(mean[i], d[:, i].mean(0))
+        np.testing.assert_allclose(cov[i], np.cov(d[:, i].T, bias=True), rtol=1e-9)
+        np.testing.assert_allclose(gain[i], 5.0 * np.linalg.inv(cov[i]), rtol=1e-9)
+    meta = {'herd_place': (mean, gain, cov)}
+    at_slots = (slots - slots.mean(0))[None] + np.array([[500.0, -300.0]])
+    assert np.allclose(place_drift(meta, at_slots), 0.0, atol=1e-9)
+    away = at_slots.copy()
+    away[0, 0] += [-40.0, 0.0]                                # agent 0 runs 40 m west
+    g = place_drift(meta, away)[0]
+    assert g[0, 0] > 0.0 and abs(g[0, 1]) < 0.2 * g[0, 0]     # pulled back east
+    assert (g[1:, 0] < 0.0).all()                             # the others lean after it
+
+
+def test_a_law_with_its_herd_places_keeps_a_travelling_herd_together():
+    # three agents of damping and noise alone random-walk apart; with the places learned
+    # from a cohesive herd their mutual distances stay those of the herd while the herd as a
+    # whole still wanders (a home range would not hold it: it has none)
+    import dataclasses
+
+    from herd_ros.model.herd_place import herd_place
+    model = damping_model([0.8, 0.8, 0.8], q=0.02)
+    rng = np.random.default_rng(1)
+    steps = 3000
+    herd = (np.cumsum(rng.normal(0.0, 0.3, (steps, 1, 2)), axis=0)
+            + np.array([[-5.0, 0.0], [5.0, 0.0], [0.0, 8.0]]) + rng.normal(0, 1.0, (steps, 3, 2)))
+    q = np.stack([model.laws[a].noise_cov for a in model.agents])
+    place = herd_place(herd, model.damping, q, model.dt)
+    kept = dataclasses.replace(model, meta={**model.meta, 'herd_place': place})
+
+    def spread(m, seed):
+        run = simulate(m, 20000, herd[0], seed=seed)
+        p = run.positions[-10000:]
+        return np.linalg.norm(p[:, :, None] - p[:, None], axis=-1).max(axis=(1, 2)).mean()
+    data = np.linalg.norm(herd[:, :, None] - herd[:, None], axis=-1).max(axis=(1, 2)).mean()
+    free, together = spread(model, 3), spread(kept, 3)
+    assert free > 3.0 * data, (free, data)
+    assert abs(together - data) < 0.35 * data, (together, data)

@@ -39,6 +39,7 @@ import numpy as np
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import AgentLaw, HerdModel, pairwise_geometry
 from herd_ros.model.noise_regimes import noise_for, subset_regimes
+from herd_ros.model.herd_place import subset_place
 from herd_ros.model.space_use_field import subset_home
 
 #: Herd-clock steps the hold steps the law through at once; a longer jump of the clock (sim
@@ -65,10 +66,11 @@ def _robot_assignment(model, assignment, robots=None) -> tuple[list[str], list[i
 
 
 def _robot_meta(model, index) -> dict:
-    """The robots' model meta: each robot its animal's velocity memory, noise regimes and
-    space-use home pull."""
+    """The robots' model meta: each robot its animal's velocity memory, noise regimes,
+    space-use home pull and place in the herd."""
     return {'velocity_memory': model.velocity_memory[np.asarray(index)],
-            **subset_regimes(model.meta, index), **subset_home(model.meta, index)}
+            **subset_regimes(model.meta, index), **subset_home(model.meta, index),
+            **subset_place(model.meta, index)}
 
 
 def _robot_alignment(model, index):

@@ -51,6 +51,7 @@ import numpy as np
 from herd_ros.errors import HerdInputError
 from herd_ros.estimation.rls import HerdRLS
 from herd_ros.model.herd_model import AgentLaw, HerdModel
+from herd_ros.model.herd_place import place_gain, place_offsets
 from herd_ros.model.model_file import atomic_open
 from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS, FieldGrid, RbfBasis
 from herd_ros.model.regressors import pairwise_columns
@@ -58,6 +59,8 @@ from herd_ros.model.shared_law import (DistanceProfile, SharedLawModel,
                                        shared_rows)
 
 LAWS = ('pairwise', 'shared')
+#: positions an agent needs before its home pull (:meth:`OnlineHerdEstimator.home_pull`) acts
+MIN_HOME_POSITIONS = 10
 STEP_TOLERANCE = 1e-3
 
 
@@ -296,6 +299,15 @@ class OnlineHerdEstimator:
         self._rows_memo = None
         self.last_seen = np.full((n, 2), np.nan)
         self.visits = np.zeros((n, self.basis.size), dtype=np.int64)
+        # running moments of each agent's positions on the model clock (decayed by the
+        # forgetting factor): weight, Σ p, Σ p pᵀ — the home range of the space-use pull
+        self.pos_w = np.zeros(n)
+        self.pos_sum = np.zeros((n, 2))
+        self.pos_sq = np.zeros((n, 2, 2))
+        # ... and of each agent's offset from the others' centroid (its place in the herd)
+        self.place_w = np.zeros(n)
+        self.place_sum = np.zeros((n, 2))
+        self.place_sq = np.zeros((n, 2, 2))
         self.stat_sq = np.zeros(n)          # decayed Σ ‖e‖²
         self.stat_w = np.zeros(n)           # decayed Σ 1
         self.stat_lag = np.zeros((n, 2))    # decayed Σ e_t e_{t−1}
@@ -467,6 +479,15 @@ class OnlineHerdEstimator:
         self.buffer_positions.append(p.copy())
         seen = np.isfinite(p).all(axis=1)
         self.last_seen[seen] = p[seen]
+        lam = self.rls.forgetting
+        for (w, s, sq), x in (((self.pos_w, self.pos_sum, self.pos_sq), p),
+                              ((self.place_w, self.place_sum, self.place_sq),
+                               place_offsets(p))):
+            ok = np.isfinite(x).all(axis=1)
+            q = x[ok]
+            w[ok] = lam * w[ok] + 1.0
+            s[ok] = lam * s[ok] + q
+            sq[ok] = lam * sq[ok] + q[:, :, None] * q[:, None, :]
 
     def _count_visits(self, p0, used):
         xmin, xmax, ymin, ymax = self.grid.bounds
@@ -604,23 +625,70 @@ class OnlineHerdEstimator:
         n = len(self.agents)
         return self.rls.noise_cov().reshape(n, 1, 2, 2), np.ones((n, 1, 1))
 
+    def published_law(self):
+        """What the ``estimator`` node publishes, the law of the model file: θ (agent ×
+        param) with the field centres an agent has not visited ``min_visits`` times at
+        zero and the rest re-solved (:meth:`pruned_estimate`: a field bounded to the data,
+        not the prior's guesses where the herd never was), and the home pull (μ, K, Σ) of
+        :meth:`home_pull` for that θ and the noise the robots draw (the stationary mean of
+        :meth:`published_regimes`: the herd's present pace)."""
+        from herd_ros.model.noise_regimes import stationary_distribution
+        theta, _ = self.pruned_estimate(self.kept_centers())
+        cov, trans = self.published_regimes()
+        noise = np.stack([np.einsum('k,kij->ij', stationary_distribution(t), c)
+                          for c, t in zip(cov, trans)])
+        return theta, self.home_pull(theta, noise), self.herd_place(theta, noise)
+
+    def home_pull(self, theta=None, noise=None):
+        """Each animal's range and the pull that keeps the law in it: (μ (N, 2), K (N, 2,
+        2), Σ (N, 2, 2)), the running mean and covariance of its positions so far (on the
+        model clock, weighted by the forgetting factor) and the gain of (S2) of
+        :mod:`herd_ros.model.space_use_field`, K_i = Δt/(2(1 − a_i)) Q_i Σ_i⁻¹ — the
+        Ornstein-Uhlenbeck pull of the Gaussian home range — applied at the range's edge
+        (:func:`~herd_ros.model.space_use_field.home_drift`: beyond the Mahalanobis radius
+        2). K_i = 0 for an agent with fewer than ``MIN_HOME_POSITIONS`` positions,
+        positions that do not spread, or a law without a stationary state (a_i ≥ 1).
+        ``theta`` (N, p): the law it joins (default: the current estimate); ``noise`` (N,
+        2, 2): the noise that law draws (default: Q_i)."""
+        return self._range(self.pos_w, self.pos_sum, self.pos_sq, theta, noise)
+
+    def herd_place(self, theta=None, noise=None):
+        """Each animal's place in the herd, (m (N, 2), K (N, 2, 2), S (N, 2, 2)) of (P1) of
+        :mod:`herd_ros.model.herd_place`: the running mean and covariance of its offset
+        from the others' centroid and the gain of the pull at that range's edge (the home
+        pull of :meth:`home_pull` in the herd's frame: a travelling herd's robots keep
+        together). Same conditions and arguments as :meth:`home_pull`."""
+        return self._range(self.place_w, self.place_sum, self.place_sq, theta, noise)
+
+    def _range(self, w, total, sq, theta, noise):
+        """(mean, gain, covariance) of running moments (weight, Σ x, Σ x xᵀ)."""
+        n = len(self.agents)
+        a = (self.rls.theta if theta is None else np.asarray(theta, dtype=float))[:, 0]
+        with np.errstate(invalid='ignore', divide='ignore'):
+            mu = np.nan_to_num(total / w[:, None])
+            cov = np.nan_to_num(sq / w[:, None, None] - mu[:, :, None] * mu[:, None, :])
+        q = self.rls.noise_cov() if noise is None else np.asarray(noise, dtype=float)
+        return place_gain(w, mu, cov, a, q.reshape(n, 2, 2), self.dt, MIN_HOME_POSITIONS)
+
     def model(self, frame_id: str = 'map', datum=None):
         """The current estimate as a model (HerdModel or SharedLawModel), lazily pruned;
         with the noise regimes when they have been fitted, scaled so that their stationary
         mean is the model's Q_i (as the regimes of a fitted model file are)."""
+        import dataclasses
         keeps = self.kept_centers()
         theta, se = self.pruned_estimate(keeps)
         noise_cov = self.rls.noise_cov()
         model = self.regressor.to_model(theta, se, noise_cov, keeps, self.dt, frame_id, datum)
+        meta = dict(model.meta or {})
+        for key, (mu, gain, cov) in (('space_use_home', self.home_pull(theta)),
+                                     ('herd_place', self.herd_place(theta))):
+            if gain.any():
+                meta[key] = (mu, gain, cov)
         if self.noise_regimes is not None:
-            import dataclasses
-
             from herd_ros.model.noise_regimes import regimes_scaled_to
             cov, trans = self.noise_regimes
-            meta = {**(model.meta or {}),
-                    'noise_regimes': (regimes_scaled_to(cov, trans, noise_cov), trans)}
-            model = dataclasses.replace(model, meta=meta)
-        return model
+            meta['noise_regimes'] = (regimes_scaled_to(cov, trans, noise_cov), trans)
+        return dataclasses.replace(model, meta=meta)
 
     def save_model(self, path, frame_id: str = 'map', datum=None):
         """Write the model file (``schwager2007`` or ``schwager2007_shared``) atomically."""
@@ -641,7 +709,9 @@ class OnlineHerdEstimator:
             buf_p[:k] = np.stack(positions)
         arrays = {f'rls_{key}': v for key, v in self.rls.state().items()}
         arrays.update(buffer_times=buf_t, buffer_positions=buf_p, last_seen=self.last_seen,
-                      visits=self.visits, stat_sq=self.stat_sq, stat_w=self.stat_w,
+                      visits=self.visits, pos_w=self.pos_w, pos_sum=self.pos_sum,
+                      pos_sq=self.pos_sq, place_w=self.place_w, place_sum=self.place_sum,
+                      place_sq=self.place_sq, stat_sq=self.stat_sq, stat_w=self.stat_w,
                       stat_lag=self.stat_lag, stat_var=self.stat_var,
                       stat_pairs=self.stat_pairs, prev_residual=self.prev_residual,
                       skill_sq=self.skill_sq, skill_n=self.skill_n,
@@ -679,7 +749,9 @@ class OnlineHerdEstimator:
         for key in ('last_seen', 'visits', 'stat_sq', 'stat_w', 'stat_lag', 'stat_var',
                     'stat_pairs', 'prev_residual'):
             setattr(self, key, np.array(data[key]))
-        for key in ('skill_sq', 'skill_n'):        # absent from older checkpoints
+        # (absent from older checkpoints)
+        for key in ('skill_sq', 'skill_n', 'pos_w', 'pos_sum', 'pos_sq', 'place_w',
+                    'place_sum', 'place_sq'):
             if key in data:
                 setattr(self, key, np.array(data[key]))
         if 'session' in data:

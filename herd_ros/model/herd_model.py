@@ -26,6 +26,7 @@ import numpy as np
 from herd_ros.errors import HerdInputError
 from herd_ros.model.alignment import VelocityAlignment, alignment_term
 from herd_ros.model.rbf_field import RbfBasis, agent_fields
+from herd_ros.model.herd_place import place_drift
 from herd_ros.model.space_use_field import home_drift
 from herd_ros.model.velocity_memory import VelocityMemory
 
@@ -173,9 +174,10 @@ class HerdModel(VelocityMemory):
 
     def environment(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
         """g_i(p_i) for every agent: positions (..., N, 2) -> (..., N, 2); the RBF field plus,
-        in a long-run model, the space-use home pull (S2) of :mod:`space_use_field`."""
+        in a long-run model, the space-use home pull (S2) of :mod:`space_use_field` and the
+        pull to the agent's place in the herd (P1) of :mod:`herd_place`."""
         return (agent_fields(positions, self._centers, self._sigma, self._coef, compiled)
-                + home_drift(self.meta, positions))
+                + home_drift(self.meta, positions) + place_drift(self.meta, positions))
 
     def drift(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
         """Σ_j f_ij(p) + g_i(p_i) for every agent (..., N, 2)."""

@@ -133,6 +133,42 @@ def read_home(center, gain, n_agents: int, where: str):
     return c.reshape(n_agents, 2), k.reshape(n_agents, 2, 2)
 
 
+def read_home_range(values, n_agents: int, where: str, key: str = 'space_use_home_range'):
+    """Σ (N, 2, 2) of a range key (``space_use_home_range``, ``herd_place_range``): each
+    agent's range covariance (finite, symmetric, positive semi-definite)."""
+    try:
+        r = np.asarray(values, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise HerdInputError(f'{where}.{key} must be a list of numbers') from None
+    if len(r) != 4 * n_agents or not np.isfinite(r).all():
+        raise HerdInputError(f'{where}: {key} needs N × 4 finite numbers ({n_agents} agents)')
+    cov = r.reshape(n_agents, 2, 2)
+    if not (np.allclose(cov, np.swapaxes(cov, 1, 2)) and
+            (np.linalg.eigvalsh(cov) >= -1e-9 * np.abs(cov).max(initial=1.0)).all()):
+        raise HerdInputError(f'{where}: {key} must hold symmetric positive semi-definite '
+                             f'2 × 2 covariances')
+    return cov
+
+
+#: The model-file keys of ``meta['herd_place']`` (:mod:`herd_ros.model.herd_place`).
+HERD_PLACE_KEYS = ('herd_place_offset', 'herd_place_gain', 'herd_place_range')
+
+
+def read_herd_place(body: dict, given: list, n_agents: int, where: str):
+    """(m (N, 2), K (N, 2, 2), S (N, 2, 2)) of the herd place from its three keys (all or
+    none), checked."""
+    if len(given) != len(HERD_PLACE_KEYS):
+        raise HerdInputError(f'{where}.{"/".join(HERD_PLACE_KEYS)} go together')
+    m, k = _number_lists(body['herd_place_offset'], body['herd_place_gain'],
+                         'herd_place_offset/herd_place_gain', where)
+    if len(m) != 2 * n_agents or len(k) != 4 * n_agents or not (
+            np.isfinite(m).all() and np.isfinite(k).all()):
+        raise HerdInputError(f'{where}: herd_place_offset needs N × 2 finite numbers and '
+                             f'herd_place_gain N × 4 ({n_agents} agents)')
+    s = read_home_range(body['herd_place_range'], n_agents, where, 'herd_place_range')
+    return m.reshape(n_agents, 2), k.reshape(n_agents, 2, 2), s
+
+
 #: Per-agent positive factors kept in ``meta`` and the model file under the same key.
 PER_AGENT_FACTORS = ('prediction_scale', 'noise_scale')
 
@@ -161,13 +197,26 @@ def add_model_meta(body: dict, model) -> None:
       :mod:`herd_ros.model.noise_regimes`; absent = Gaussian noise N(0, Q_i);
     * ``space_use_home_center`` [N × (x, y)] and ``space_use_home_gain`` [N × (kxx, kxy,
       kyx, kyy)]: the home pull −K_i (p − μ_i) of the space-use field, (S2) of
-      :mod:`herd_ros.model.space_use_field`, added to the RBF field; absent = none.
+      :mod:`herd_ros.model.space_use_field`, added to the RBF field; absent = none;
+      with ``space_use_home_range`` [N × (σxx, σxy, σyx, σyy)], each agent's range
+      covariance, the pull acts only beyond the range's edge
+      (:func:`~herd_ros.model.space_use_field.home_drift`; the ``estimator``'s models);
+    * ``herd_place_offset`` [N × (x, y)], ``herd_place_gain`` [N × 4] and
+      ``herd_place_range`` [N × 4]: each agent's place in the herd, the mean m_i and
+      covariance S_i of its offset from the others' centroid and the gain K_i of the pull
+      at that range's edge ((P1) of :mod:`herd_ros.model.herd_place`); absent = none.
     """
     meta = model.meta or {}
     for name, keys, _ in PAIRED_META:
         if meta.get(name) is not None:
             for key, values in zip(keys, meta[name]):
                 body[key] = float_list(np.asarray(values).ravel())
+    home = meta.get('space_use_home')
+    if home is not None and len(home) > 2:
+        body['space_use_home_range'] = float_list(np.asarray(home[2]).ravel())
+    if meta.get('herd_place') is not None:
+        for key, values in zip(HERD_PLACE_KEYS, meta['herd_place']):
+            body[key] = float_list(np.asarray(values).ravel())
     for key in PER_AGENT_FACTORS:
         if meta.get(key) is not None:
             body[key] = float_list(meta[key])
@@ -196,6 +245,15 @@ def read_model_meta(body: dict, n_agents: int, source: str) -> dict:
             raise HerdInputError(f'{source}: model.{first} and model.{second} go together')
         if first in body:
             meta[name] = read(body[first], body[second], n_agents, f'{source}: model')
+    given = [k for k in HERD_PLACE_KEYS if k in body]
+    if given:
+        meta['herd_place'] = read_herd_place(body, given, n_agents, f'{source}: model')
+    if 'space_use_home_range' in body:
+        if 'space_use_home' not in meta:
+            raise HerdInputError(f'{source}: model.space_use_home_range needs '
+                                 f'space_use_home_center and space_use_home_gain')
+        meta['space_use_home'] += (read_home_range(body['space_use_home_range'], n_agents,
+                                                   f'{source}: model'),)
     if 'velocity_memory' in body:
         try:
             meta['velocity_memory'] = check_memories(body['velocity_memory'], n_agents)

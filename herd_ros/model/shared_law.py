@@ -82,6 +82,7 @@ from herd_ros.model.distance_profile import (  # noqa: F401 (re-exported)
 from herd_ros.model.model_file import (add_model_meta, check_agent_id, float_list,
                                        load_model_body, read_alignment, read_model_meta)
 from herd_ros.model.rbf_field import RbfBasis, agent_fields
+from herd_ros.model.herd_place import place_drift
 from herd_ros.model.space_use_field import home_drift
 from herd_ros.model.velocity_memory import VelocityMemory
 
@@ -318,9 +319,10 @@ class SharedLawModel(VelocityMemory):
         return out if p.ndim == 3 else out[0]
 
     def environment(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
-        """g_i(p_i) for positions (..., N, 2): the RBF field (plus the space-use home pull)."""
+        """g_i(p_i) for positions (..., N, 2): the RBF field (plus the space-use home pull and
+        the pull to the agent's place in the herd)."""
         return (agent_fields(positions, self._centers, self._sigma, self._coef, compiled)
-                + home_drift(self.meta, positions))
+                + home_drift(self.meta, positions) + place_drift(self.meta, positions))
 
     def drift(self, positions, compiled: bool | None = None):
         """Σ_j F(d_ij) e_ij (+ own profiles) + g_i(p_i) for every agent: (N, 2) -> (N, 2)."""

@@ -67,6 +67,9 @@ PAD_FRACTION = 0.25
 CENTRES_PER_BANDWIDTH = 1.0
 #: At most this many RBF centres along an axis (a finer density is smoothed by the basis).
 MAX_CENTRES_PER_AXIS = 20
+#: The edge of an agent's range for the edge pull of :func:`home_drift`: this Mahalanobis
+#: radius (2: the ellipse holding 1 − e⁻² = 86 % of a Gaussian's positions).
+HOME_RANGE_RADIUS = 2.0
 
 
 @dataclass
@@ -152,30 +155,61 @@ def langevin_drift(density: UtilizationDensity, damping: float, noise_cov: np.nd
 def home_pull(points: np.ndarray, damping: float, noise_cov: np.ndarray,
               dt: float) -> tuple[np.ndarray, np.ndarray]:
     """(S2): the centre μ (2,) and gain K (2, 2) of the Gaussian home pull −K (p − μ) of an
-    agent with positions ``points`` (M, 2): K = Δt/(2(1 − a)) Q Σ⁻¹, Σ the covariance of
-    the finite positions (floored at 1e-6 of its largest eigenvalue: a herd along a fence
-    line keeps a finite pull across it)."""
+    agent with positions ``points`` (M, 2): μ their mean, K of :func:`home_gain` with Σ
+    their covariance."""
     pts = _finite_points(points)
     _check_stationary(damping)
-    mu = pts.mean(axis=0)
-    sigma = np.cov(pts.T)
+    return pts.mean(axis=0), home_gain(np.cov(pts.T), damping, noise_cov, dt)
+
+
+def home_gain(cov: np.ndarray, damping, noise_cov: np.ndarray, dt: float) -> np.ndarray:
+    """K = Δt/(2(1 − a)) Q Σ⁻¹ of (S2) from the covariance Σ of an agent's positions, its
+    damping a < 1 and noise Q; Σ is floored at 1e-6 of its largest eigenvalue (a herd along
+    a fence line keeps a finite pull across it). Vectorised: ``cov``, ``noise_cov``
+    (..., 2, 2), ``damping`` (...)."""
+    sigma = np.asarray(cov, dtype=float)
     w, v = np.linalg.eigh(sigma)
-    if not w[-1] > 0:
+    if not np.all(w[..., -1] > 0):
         raise HerdInputError('space-use field: the positions do not spread (σ = 0)')
-    w = np.maximum(w, 1e-6 * w[-1])
-    inv = (v / w) @ v.T
-    q = np.asarray(noise_cov, dtype=float).reshape(2, 2)
-    return mu, dt / (2.0 * (1.0 - damping)) * q @ inv
+    w = np.maximum(w, 1e-6 * w[..., -1:])
+    inv = np.einsum('...ik,...k,...jk->...ij', v, 1.0 / w, v)
+    q = np.asarray(noise_cov, dtype=float).reshape(sigma.shape)
+    scale = dt / (2.0 * (1.0 - np.asarray(damping, dtype=float)))
+    return scale[..., None, None] * q @ inv
 
 
 def home_drift(meta: dict | None, positions: np.ndarray) -> np.ndarray | float:
-    """The home pull (S2) of every agent, from a model's ``meta['space_use_home']`` = (μ
-    (N, 2), K (N, 2, 2)): −K_i (p_i − μ_i) for positions (..., N, 2); 0.0 without it."""
+    """The home pull of every agent from a model's ``meta['space_use_home']``, for positions
+    (..., N, 2); 0.0 without it. Two forms:
+
+    * (μ (N, 2), K (N, 2, 2)): (S2), −K_i (p_i − μ_i), the Gaussian home range's pull
+      everywhere (the space-use field's linear part, exact with its RBF part);
+    * (μ, K, Σ (N, 2, 2)): the pull at the range's edge (:func:`edge_pull`) — none inside
+      the range (where the law's own terms move the agent), the gain of (S2) on the excess
+      beyond it (the live estimator's: a fitted field ends at the data and its early range
+      is small, so a pull to the centre would hold robots tighter than their animals while
+      the range is still being discovered)."""
     home = (meta or {}).get('space_use_home')
     if home is None:
         return 0.0
-    mu, gain = home
-    return -np.einsum('nij,...nj->...ni', gain, np.asarray(positions, dtype=float) - mu)
+    d = np.asarray(positions, dtype=float) - home[0]
+    if len(home) < 3:
+        return -np.einsum('nij,...nj->...ni', home[1], d)
+    return edge_pull(d, home[1], home[2])
+
+
+def edge_pull(d: np.ndarray, gain: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """−K_i d_i (1 − r₀/r_i)₊ for displacements d (..., N, 2) from the centres of ranges of
+    covariance Σ_i (N, 2, 2), r_i = √(d_iᵀ Σ_i⁻¹ d_i) and r₀ = ``HOME_RANGE_RADIUS``: zero
+    within the range's edge, continuous across it, the linear pull of gain K_i (N, 2, 2) on
+    the excess beyond; NaN displacements give 0."""
+    w, v = np.linalg.eigh(np.asarray(cov, dtype=float))
+    w = np.maximum(w, 1e-6 * np.maximum(w[..., -1:], 1e-300))
+    inv = np.einsum('nik,nk,njk->nij', v, 1.0 / w, v)
+    d = np.nan_to_num(np.asarray(d, dtype=float))
+    r = np.sqrt(np.maximum(np.einsum('...ni,nij,...nj->...n', d, inv, d), 1e-300))
+    pull = -np.einsum('nij,...nj->...ni', gain, d)
+    return pull * np.clip(1.0 - HOME_RANGE_RADIUS / r, 0.0, None)[..., None]
 
 
 def subset_home(meta: dict | None, index) -> dict:
@@ -185,7 +219,7 @@ def subset_home(meta: dict | None, index) -> dict:
     if home is None:
         return {}
     idx = np.asarray(index)
-    return {'space_use_home': (np.asarray(home[0])[idx], np.asarray(home[1])[idx])}
+    return {'space_use_home': tuple(np.asarray(h)[idx] for h in home)}
 
 
 def project_on_basis(density: UtilizationDensity, drift: np.ndarray, basis: RbfBasis,

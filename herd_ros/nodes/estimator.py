@@ -45,6 +45,10 @@ from herd_ros.nodes.model_markers import model_markers, pose_at
 from herd_ros.params.estimator import (LEARNER_OPTIONS, PARAMS as DEFAULTS, check,
                                       forgetting_problem)
 
+#: the columns of /herd/model/home and /herd/model/place: each animal's range (mean,
+#: covariance) and the gain of the pull at its edge
+RANGE_COLUMNS = 'mux_muy_kxx_kxy_kyx_kyy_sxx_sxy_syx_syy'
+
 
 def read_parameters(node: Node) -> dict:
     """Declare and check every parameter (:func:`~herd_ros.params.estimator.check`);
@@ -78,6 +82,8 @@ class Estimator(Node):
             String(data=self.core.structure().to_json()))
         self.params_pub = self.create_publisher(Float64MultiArray, '/herd/model/params', 10)
         self.noise_pub = self.create_publisher(Float64MultiArray, '/herd/model/noise', 10)
+        self.home_pub = self.create_publisher(Float64MultiArray, '/herd/model/home', 10)
+        self.place_pub = self.create_publisher(Float64MultiArray, '/herd/model/place', 10)
         self.regimes_pub = self.create_publisher(Float64MultiArray,
                                                  '/herd/model/noise_regimes', latched)
         self.pred_pub = self.create_publisher(PoseArray, '/herd/model/prediction', 10)
@@ -256,12 +262,16 @@ class Estimator(Node):
             'estimator: herd clock', WARN, text, dict(self.counts))]))
 
     def publish_params(self, stamp=None):
-        """Publish θ and Q (agent × param, agent × 4)."""
-        theta = self.core.theta
+        """Publish the law of the model file: θ, Q, each animal's range and home pull and
+        its place in the herd (agent × param, agent × 4, agent × 10, agent × 10)."""
+        theta, home, place = self.core.published_law()
+        n = len(theta)
         self.params_pub.publish(matrix_message(theta, 'param'))
         self.noise_pub.publish(matrix_message(
-            self.core.rls.noise_cov().reshape(len(theta), 4), 'qxx_qxy_qyx_qyy'))
-
+            self.core.rls.noise_cov().reshape(n, 4), 'qxx_qxy_qyx_qyy'))
+        for pub, (mean, gain, cov) in ((self.home_pub, home), (self.place_pub, place)):
+            pub.publish(matrix_message(np.hstack([mean, gain.reshape(n, 4),
+                                                  cov.reshape(n, 4)]), RANGE_COLUMNS))
 
     def publish_prediction(self):
         """Publish the one-step prediction of the next tick."""

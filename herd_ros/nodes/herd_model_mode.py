@@ -56,6 +56,7 @@ class HerdModelPolicy:
             self.set_model(model)
         elif self.source == 'topic':
             self.structure, self.noise_cov, self.noise_regimes = None, None, None
+            self.home = self.place = None   # /herd/model/home, /place: (μ, K, Σ) or None
             self.regimes_data = None        # the latest /herd/model/noise_regimes, as sent
             self.status = 'waiting for /herd/model/structure (the estimator)'
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -68,6 +69,10 @@ class HerdModelPolicy:
                                      self.on_noise, 10)
             node.create_subscription(Float64MultiArray, '/herd/model/noise_regimes',
                                      self.on_noise_regimes, latched)
+            node.create_subscription(Float64MultiArray, '/herd/model/home',
+                                     lambda msg: self.on_range(msg, 'home'), 10)
+            node.create_subscription(Float64MultiArray, '/herd/model/place',
+                                     lambda msg: self.on_range(msg, 'place'), 10)
         else:
             raise ParameterError(f'model_source must be file or topic, got {self.source!r}')
 
@@ -188,12 +193,14 @@ class HerdModelPolicy:
                     'robots hold still until a model is accepted'
                 raise HerdInputError(f'/herd/model/params refused: {problem}; {kept}')
             model = HerdDynamics.from_parameters(theta, st, self.noise_cov).model
-            if self.noise_regimes is not None:
-                # the regimes as the estimator fitted them: the noise of its last window
-                # (online_regimes), the herd's present pace
+            # the regimes as the estimator fitted them: the noise of its last window
+            # (online_regimes), the herd's present pace; and each animal's home pull
+            extra = {'noise_regimes': self.noise_regimes, 'space_use_home': self.home,
+                     'herd_place': self.place}
+            extra = {k: v for k, v in extra.items() if v is not None}
+            if extra:
                 import dataclasses
-                model = dataclasses.replace(model, meta={**(model.meta or {}),
-                                                         'noise_regimes': self.noise_regimes})
+                model = dataclasses.replace(model, meta={**(model.meta or {}), **extra})
             self.set_model(model)
         except (HerdInputError, ParameterError) as exc:
             self.status = f'ignored parameters: {exc}'
@@ -211,6 +218,25 @@ class HerdModelPolicy:
                                         f'got {data.size}', throttle_duration_sec=10.0)
             return
         self.noise_cov = data.reshape(n, 2, 2)
+
+    def on_range(self, msg: Float64MultiArray, which: str):
+        """Each animal's range and the gain of the pull at its edge from
+        ``/herd/model/home`` (its positions: ``which`` = 'home') or ``/herd/model/place``
+        (its offset from the others' centroid: 'place'), agent × [μx, μy, kxx, kxy, kyx,
+        kyy, σxx, σxy, σyx, σyy]; K = 0: none yet
+        (:func:`~herd_ros.model.space_use_field.home_drift`,
+        :func:`~herd_ros.model.herd_place.place_drift`)."""
+        data = np.asarray(msg.data, dtype=float)
+        if self.structure is None:
+            return
+        n = len(self.structure.agents)
+        if data.size != 10 * n or not np.isfinite(data).all():
+            self.node.get_logger().warn(f'/herd/model/{which}: expected {10 * n} finite '
+                                        f'numbers, got {data.size}', throttle_duration_sec=10.0)
+            return
+        rows = data.reshape(n, 10)
+        setattr(self, which, (rows[:, :2], rows[:, 2:6].reshape(n, 2, 2),
+                              rows[:, 6:].reshape(n, 2, 2)) if rows[:, 2:6].any() else None)
 
     def on_noise_regimes(self, msg: Float64MultiArray):
         """The stop-and-go noise of every agent from ``/herd/model/noise_regimes`` (agent ×

@@ -1,0 +1,106 @@
+"""Each agent's place in the herd: the range of its offset from the others' centroid, and
+the pull that keeps a law there when it runs freely.
+
+A herd that travels (cows crossing their pasture together, a baboon troop on its daily
+route) has no fixed home range to pull an agent back to; what stays is each animal's place
+among the others. With the offset
+
+    d_i = p_i − c_−i,   c_−i the mean position of the other agents present,
+
+a cohesive herd's offsets are stationary where its positions are not. Their mean m_i and
+covariance S_i are the range of agent i's place, and the pull at that range's edge
+
+    g_i^place = −K_i (d_i − m_i)(1 − r₀/r)₊,   K_i = Δt/(2(1 − a_i)) Q_i S_i⁻¹        (P1)
+
+is the home pull of :mod:`herd_ros.model.space_use_field` ((S2), in its edge form
+:func:`~herd_ros.model.space_use_field.edge_pull`) in the herd's frame: the
+Ornstein-Uhlenbeck pull whose stationary covariance is S_i for the law's noise Q_i (the
+others' own noise neglected), acting only beyond the edge of the range (r the Mahalanobis
+distance of d_i − m_i in S_i, r₀ = ``HOME_RANGE_RADIUS``), so inside it the learned law
+alone moves the agent. Attraction to the group's centroid is how group movement models
+hold a group together (Haydon et al. 2008, Proc. R. Soc. B 275:1101; Langrock et al. 2014,
+Methods Ecol. Evol. 5:190); here its strength and reach come from the data's spread.
+
+In a model it is ``meta['herd_place']`` = (m (N, 2), K (N, 2, 2), S (N, 2, 2)); a robot
+fleet keeps each robot's place among the other robots (their centroid stands for the
+herd's).
+
+Plain numpy; no ROS.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from herd_ros.model.space_use_field import edge_pull, home_gain
+
+
+def others_centroid(positions: np.ndarray) -> np.ndarray:
+    """c_−i, the mean position of the agents other than i that are present (finite), for
+    positions (..., N, 2); NaN where no other agent is."""
+    p = np.asarray(positions, dtype=float)
+    seen = np.isfinite(p).all(axis=-1, keepdims=True)
+    q = np.where(seen, p, 0.0)
+    total = q.sum(axis=-2, keepdims=True) - q
+    count = seen.sum(axis=-2, keepdims=True) - seen
+    with np.errstate(invalid='ignore', divide='ignore'):
+        return np.where(count > 0, total / count, np.nan)
+
+
+def place_offsets(positions: np.ndarray) -> np.ndarray:
+    """d_i = p_i − c_−i for positions (..., N, 2) (NaN where p_i or every other is)."""
+    p = np.asarray(positions, dtype=float)
+    return p - others_centroid(p)
+
+
+def herd_place(positions: np.ndarray, damping, noise_cov, dt: float,
+               min_samples: int = 10):
+    """(m (N, 2), K (N, 2, 2), S (N, 2, 2)) of (P1) from positions (T, N, 2) on the model
+    clock: the mean and covariance of each agent's offsets and the gain for its damping a_i
+    (N,) and noise Q_i (N, 2, 2). K_i = 0 for an agent with fewer than ``min_samples``
+    offsets, offsets that do not spread, or a_i ≥ 1."""
+    d = place_offsets(positions)
+    ok = np.isfinite(d).all(axis=-1)                       # (T, N)
+    n = ok.sum(axis=0).astype(float)
+    z = np.where(ok[..., None], d, 0.0)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        m = z.sum(axis=0) / n[:, None]
+        e = np.where(ok[..., None], d - m, 0.0)
+        s = np.einsum('tni,tnj->nij', e, e) / n[:, None, None]
+    return place_gain(n, np.nan_to_num(m), np.nan_to_num(s), damping, noise_cov, dt,
+                      min_samples)
+
+
+def place_gain(weight, mean, cov, damping, noise_cov, dt: float, min_samples: int = 10):
+    """(m, K, S) of (P1) from the offsets' weight (N,), mean (N, 2) and covariance (N, 2, 2):
+    K_i of :func:`~herd_ros.model.space_use_field.home_gain` where agent i has
+    ``min_samples``, a spread and a < 1, else 0."""
+    a = np.asarray(damping, dtype=float)
+    q = np.asarray(noise_cov, dtype=float)
+    cov = np.asarray(cov, dtype=float)
+    gain = np.zeros_like(cov)
+    top = np.linalg.eigvalsh(cov)[:, -1]
+    ok = ((np.asarray(weight) >= min_samples) & (a < 1.0) & (top > 0)
+          & np.isfinite(q).all(axis=(1, 2)))
+    if ok.any():
+        gain[ok] = home_gain(cov[ok], a[ok], q[ok], dt)
+    return np.asarray(mean, dtype=float), gain, cov
+
+
+def place_drift(meta: dict | None, positions: np.ndarray) -> np.ndarray | float:
+    """(P1) for every agent from ``meta['herd_place']``, positions (..., N, 2); 0.0
+    without it (and for an agent with no other present)."""
+    place = (meta or {}).get('herd_place')
+    if place is None:
+        return 0.0
+    mean, gain, cov = place
+    return edge_pull(place_offsets(positions) - mean, gain, cov)
+
+
+def subset_place(meta: dict | None, index) -> dict:
+    """``meta``'s herd place for the agents ``index`` (a robot fleet's animals), as a dict
+    to merge into the subset model's meta (empty without it)."""
+    place = (meta or {}).get('herd_place')
+    if place is None:
+        return {}
+    idx = np.asarray(index)
+    return {'herd_place': tuple(np.asarray(x)[idx] for x in place)}
