@@ -229,6 +229,18 @@ def test_controller_starts_from_a_saved_model_file_alone(graph, kind, tmp_path):
     assert f'model of {n} animals' in text
 
 
+def publish_structure(ear, model):
+    """Publish, latched, the estimator's structure for ``model`` (its agents, a 6 × 6 grid
+    over ±150 m at dt 1 s); (the latched QoS, the structure)."""
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    structure = ModelStructure(tuple(model.agents), 1.0, 'pairwise', (6, 6),
+                               (-150.0, 150.0, -150.0, 150.0), 60.0, 6)
+    ear.node.create_publisher(String, '/herd/model/structure', latched).publish(
+        String(data=structure.to_json()))
+    return latched, structure
+
+
 def test_live_model_from_the_estimator_topic(graph):
     g, ear = graph
     cmds = {r: ear.record(Twist, f'/fleet/{r}/cmd_vel') for r in ('r1', 'r2')}
@@ -239,13 +251,8 @@ def test_live_model_from_the_estimator_topic(graph):
     params = ear.node.create_publisher(Float64MultiArray, '/herd/model/params', 10)
     # what the estimator publishes, latched: how to read the rows (the controller declares
     # none of it)
-    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    structure = ModelStructure(tuple(model.agents), 1.0, 'pairwise', (6, 6),
-                               (-150.0, 150.0, -150.0, 150.0), 60.0, 6)
+    _, structure = publish_structure(ear, model)
     assert structure.n_params == theta.shape[1]
-    ear.node.create_publisher(String, '/herd/model/structure', latched).publish(
-        String(data=structure.to_json()))
     odom_pubs = {r: ear.node.create_publisher(Odometry, f'/fleet/{r}/odom', 10)
                  for r in ('r1', 'r2')}
 
@@ -280,12 +287,7 @@ def test_live_noise_regimes_from_the_estimator_topic(graph):
             '-p', 'robots:=[r1, r2]', '-p', 'model_source:=topic', '-p', 'noise:=true')
     model = make_truth_model(3, seed=1)
     theta = np.stack([model.laws[a].theta for a in model.agents])
-    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    structure = ModelStructure(tuple(model.agents), 1.0, 'pairwise', (6, 6),
-                               (-150.0, 150.0, -150.0, 150.0), 60.0, 6)
-    ear.node.create_publisher(String, '/herd/model/structure', latched).publish(
-        String(data=structure.to_json()))
+    latched, _ = publish_structure(ear, model)
     q = np.stack([model.laws[a].noise_cov for a in model.agents])
     regimes = np.concatenate([np.stack([0.1 * q, 4.0 * q], axis=1).reshape(3, 2, 4),
                               np.tile([[0.95, 0.05], [0.1, 0.9]], (3, 1, 1))], axis=2)
@@ -318,12 +320,7 @@ def test_live_home_pull_from_the_estimator_topic(graph):
     model = make_truth_model(3, seed=1)
     theta = np.stack([model.laws[a].theta for a in model.agents])
     theta[:, 1:] = 0.0                           # no pair law, no field: damping alone
-    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    structure = ModelStructure(tuple(model.agents), 1.0, 'pairwise', (6, 6),
-                               (-150.0, 150.0, -150.0, 150.0), 60.0, 6)
-    ear.node.create_publisher(String, '/herd/model/structure', latched).publish(
-        String(data=structure.to_json()))
+    publish_structure(ear, model)
     from herd_ros.nodes.ros_common import tensor_message as matrix
     params = ear.node.create_publisher(Float64MultiArray, '/herd/model/params', 10)
     home = ear.node.create_publisher(Float64MultiArray, '/herd/model/home', 10)

@@ -36,6 +36,13 @@ ignored. NaN positions mark an agent missing or stale in that snapshot.
 lag-1 autocorrelation r₁ (white if |r₁| < 1.96/√n, Box & Jenkins), over a window of
 about ``stats_window`` samples (exponential weighting), and the condition number of P_i.
 
+**Ranges**: the running mean and covariance of each agent's positions and of its offset
+from the others' centroid are its home range and its place in the herd; with the gain of
+the Ornstein-Uhlenbeck home range ((S2) of :mod:`herd_ros.model.space_use_field`) they
+are the pulls at those ranges' edges that keep a law run freely — the robots — in its
+animal's range and place (:meth:`OnlineHerdEstimator.home_pull`,
+:meth:`OnlineHerdEstimator.herd_place`; published with θ and saved in the model).
+
 **Checkpoints**: :meth:`OnlineHerdEstimator.save_checkpoint` writes every array of the
 state into one ``.npz`` by write-then-rename (``os.replace``), so a kill at any moment leaves
 either the previous or the new checkpoint, never half a file.
@@ -51,7 +58,7 @@ import numpy as np
 from herd_ros.errors import HerdInputError
 from herd_ros.estimation.rls import HerdRLS
 from herd_ros.model.herd_model import AgentLaw, HerdModel
-from herd_ros.model.herd_place import place_gain, place_offsets
+from herd_ros.model.herd_place import place_offsets
 from herd_ros.model.model_file import atomic_open
 from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS, FieldGrid, RbfBasis
 from herd_ros.model.regressors import pairwise_columns
@@ -668,7 +675,8 @@ class OnlineHerdEstimator:
             mu = np.nan_to_num(total / w[:, None])
             cov = np.nan_to_num(sq / w[:, None, None] - mu[:, :, None] * mu[:, None, :])
         q = self.rls.noise_cov() if noise is None else np.asarray(noise, dtype=float)
-        return place_gain(w, mu, cov, a, q.reshape(n, 2, 2), self.dt, MIN_HOME_POSITIONS)
+        from herd_ros.model.space_use_field import range_gain
+        return range_gain(w, mu, cov, a, q.reshape(n, 2, 2), self.dt, MIN_HOME_POSITIONS)
 
     def model(self, frame_id: str = 'map', datum=None):
         """The current estimate as a model (HerdModel or SharedLawModel), lazily pruned;

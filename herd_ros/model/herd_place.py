@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from herd_ros.model.space_use_field import edge_pull, home_gain
+from herd_ros.model.space_use_field import edge_pull, range_gain
 
 
 def others_centroid(positions: np.ndarray) -> np.ndarray:
@@ -66,24 +66,8 @@ def herd_place(positions: np.ndarray, damping, noise_cov, dt: float,
         m = z.sum(axis=0) / n[:, None]
         e = np.where(ok[..., None], d - m, 0.0)
         s = np.einsum('tni,tnj->nij', e, e) / n[:, None, None]
-    return place_gain(n, np.nan_to_num(m), np.nan_to_num(s), damping, noise_cov, dt,
+    return range_gain(n, np.nan_to_num(m), np.nan_to_num(s), damping, noise_cov, dt,
                       min_samples)
-
-
-def place_gain(weight, mean, cov, damping, noise_cov, dt: float, min_samples: int = 10):
-    """(m, K, S) of (P1) from the offsets' weight (N,), mean (N, 2) and covariance (N, 2, 2):
-    K_i of :func:`~herd_ros.model.space_use_field.home_gain` where agent i has
-    ``min_samples``, a spread and a < 1, else 0."""
-    a = np.asarray(damping, dtype=float)
-    q = np.asarray(noise_cov, dtype=float)
-    cov = np.asarray(cov, dtype=float)
-    gain = np.zeros_like(cov)
-    top = np.linalg.eigvalsh(cov)[:, -1]
-    ok = ((np.asarray(weight) >= min_samples) & (a < 1.0) & (top > 0)
-          & np.isfinite(q).all(axis=(1, 2)))
-    if ok.any():
-        gain[ok] = home_gain(cov[ok], a[ok], q[ok], dt)
-    return np.asarray(mean, dtype=float), gain, cov
 
 
 def place_drift(meta: dict | None, positions: np.ndarray) -> np.ndarray | float:

@@ -178,6 +178,22 @@ def home_gain(cov: np.ndarray, damping, noise_cov: np.ndarray, dt: float) -> np.
     return scale[..., None, None] * q @ inv
 
 
+def range_gain(weight, mean, cov, damping, noise_cov, dt: float, min_samples: int = 10):
+    """(mean (N, 2), K (N, 2, 2), cov (N, 2, 2)) of a range for the edge pull: K_i of
+    :func:`home_gain` for the range's covariance where agent i has ``min_samples`` (its
+    ``weight`` (N,)), a spread and damping a_i < 1, else 0."""
+    a = np.asarray(damping, dtype=float)
+    q = np.asarray(noise_cov, dtype=float)
+    cov = np.asarray(cov, dtype=float)
+    gain = np.zeros_like(cov)
+    top = np.linalg.eigvalsh(cov)[:, -1]
+    ok = ((np.asarray(weight) >= min_samples) & (a < 1.0) & (top > 0)
+          & np.isfinite(q).all(axis=(1, 2)))
+    if ok.any():
+        gain[ok] = home_gain(cov[ok], a[ok], q[ok], dt)
+    return np.asarray(mean, dtype=float), gain, cov
+
+
 def home_drift(meta: dict | None, positions: np.ndarray) -> np.ndarray | float:
     """The home pull of every agent from a model's ``meta['space_use_home']``, for positions
     (..., N, 2); 0.0 without it. Two forms:

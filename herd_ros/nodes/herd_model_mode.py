@@ -207,17 +207,24 @@ class HerdModelPolicy:
             self.refused_since_adopted += 1
             self.node.get_logger().warn(str(exc), throttle_duration_sec=10.0)
 
-    def on_noise(self, msg: Float64MultiArray):
-        """Q_i of every agent from ``/herd/model/noise`` (agent × [qxx, qxy, qyx, qyy])."""
+    def _agent_rows(self, msg: Float64MultiArray, topic: str, width: int):
+        """The (N, width) rows of one of the estimator's per-agent topics, or None (no
+        structure yet; a malformed message, logged)."""
         data = np.asarray(msg.data, dtype=float)
         if self.structure is None:
-            return
+            return None
         n = len(self.structure.agents)
-        if data.size != 4 * n or not np.isfinite(data).all():
-            self.node.get_logger().warn(f'/herd/model/noise: expected {4 * n} finite numbers, '
+        if data.size != width * n or not np.isfinite(data).all():
+            self.node.get_logger().warn(f'{topic}: expected {width * n} finite numbers, '
                                         f'got {data.size}', throttle_duration_sec=10.0)
-            return
-        self.noise_cov = data.reshape(n, 2, 2)
+            return None
+        return data.reshape(n, width)
+
+    def on_noise(self, msg: Float64MultiArray):
+        """Q_i of every agent from ``/herd/model/noise`` (agent × [qxx, qxy, qyx, qyy])."""
+        rows = self._agent_rows(msg, '/herd/model/noise', 4)
+        if rows is not None:
+            self.noise_cov = rows.reshape(-1, 2, 2)
 
     def on_range(self, msg: Float64MultiArray, which: str):
         """Each animal's range and the gain of the pull at its edge from
@@ -226,17 +233,11 @@ class HerdModelPolicy:
         kyy, σxx, σxy, σyx, σyy]; K = 0: none yet
         (:func:`~herd_ros.model.space_use_field.home_drift`,
         :func:`~herd_ros.model.herd_place.place_drift`)."""
-        data = np.asarray(msg.data, dtype=float)
-        if self.structure is None:
-            return
-        n = len(self.structure.agents)
-        if data.size != 10 * n or not np.isfinite(data).all():
-            self.node.get_logger().warn(f'/herd/model/{which}: expected {10 * n} finite '
-                                        f'numbers, got {data.size}', throttle_duration_sec=10.0)
-            return
-        rows = data.reshape(n, 10)
-        setattr(self, which, (rows[:, :2], rows[:, 2:6].reshape(n, 2, 2),
-                              rows[:, 6:].reshape(n, 2, 2)) if rows[:, 2:6].any() else None)
+        rows = self._agent_rows(msg, f'/herd/model/{which}', 10)
+        if rows is not None:
+            setattr(self, which, (rows[:, :2], rows[:, 2:6].reshape(-1, 2, 2),
+                                  rows[:, 6:].reshape(-1, 2, 2)) if rows[:, 2:6].any()
+                    else None)
 
     def on_noise_regimes(self, msg: Float64MultiArray):
         """The stop-and-go noise of every agent from ``/herd/model/noise_regimes`` (agent ×
