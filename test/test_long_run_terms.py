@@ -381,3 +381,17 @@ def test_a_law_with_its_herd_places_keeps_a_travelling_herd_together():
     free, together = spread(model, 3), spread(kept, 3)
     assert free > 3.0 * data, (free, data)
     assert abs(together - data) < 0.35 * data, (together, data)
+
+
+def test_an_estimator_without_range_pulls_publishes_none():
+    # range_pulls=False (the estimator parameter): the ranges are still measured, the gains
+    # are zero and the model carries neither pull
+    from herd_ros.estimation.online_fit import OnlineHerdEstimator
+    rng = np.random.default_rng(4)
+    est = OnlineHerdEstimator(['a', 'b', 'c'], 1.0, law='shared', field_grid=(2, 2),
+                              field_bounds=(-50, 50, -50, 50), range_pulls=False)
+    for k in range(100):
+        est.add_snapshot(float(k), rng.normal(0.0, 5.0, (3, 2)))
+    theta, home, place = est.published_law()
+    assert not home[1].any() and not place[1].any() and home[2].any()
+    assert 'space_use_home' not in est.model().meta and 'herd_place' not in est.model().meta

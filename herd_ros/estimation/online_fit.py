@@ -242,7 +242,8 @@ class OnlineHerdEstimator:
                  stats_window: int = 500, windup: str = 'directional', basis: RbfBasis = None,
                  robust: bool = False, alignment: bool = False, alignment_radius: float = 40.0,
                  alignment_size: int = 4, alignment_neighbourhood: str = 'radius',
-                 alignment_nearest: int = 7, regime_window: int = 0):
+                 alignment_nearest: int = 7, regime_window: int = 0,
+                 range_pulls: bool = True):
         agents = [str(a) for a in agents]
         if len(agents) < 1 or len(set(agents)) != len(agents):
             raise HerdInputError(f'agents must be a non-empty list of distinct ids, got {agents}')
@@ -266,6 +267,7 @@ class OnlineHerdEstimator:
                                           alignment_neighbourhood, int(alignment_nearest))
             self.regressor = AlignedRegressor(self.regressor, kernel)
         self.min_visits = int(min_visits)
+        self.range_pulls = bool(range_pulls)        # home and place pulls (module docstring)
         self.stats_window = int(stats_window)
         self.robust = bool(robust)
         self.rls = HerdRLS(len(agents), self.regressor.n_params, forgetting, p0, windup=windup)
@@ -654,9 +656,10 @@ class OnlineHerdEstimator:
         Ornstein-Uhlenbeck pull of the Gaussian home range — applied at the range's edge
         (:func:`~herd_ros.model.space_use_field.home_drift`: beyond the Mahalanobis radius
         2). K_i = 0 for an agent with fewer than ``MIN_HOME_POSITIONS`` positions,
-        positions that do not spread, or a law without a stationary state (a_i ≥ 1).
-        ``theta`` (N, p): the law it joins (default: the current estimate); ``noise`` (N,
-        2, 2): the noise that law draws (default: Q_i)."""
+        positions that do not spread, or a law without a stationary state (a_i ≥ 1), and
+        for all with ``range_pulls=False``. ``theta`` (N, p): the law it joins (default:
+        the current estimate); ``noise`` (N, 2, 2): the noise that law draws (default:
+        Q_i)."""
         return self._range(self.pos_w, self.pos_sum, self.pos_sq, theta, noise)
 
     def herd_place(self, theta=None, noise=None):
@@ -674,8 +677,10 @@ class OnlineHerdEstimator:
         with np.errstate(invalid='ignore', divide='ignore'):
             mu = np.nan_to_num(total / w[:, None])
             cov = np.nan_to_num(sq / w[:, None, None] - mu[:, :, None] * mu[:, None, :])
-        q = self.rls.noise_cov() if noise is None else np.asarray(noise, dtype=float)
         from herd_ros.model.space_use_field import range_gain
+        q = self.rls.noise_cov() if noise is None else np.asarray(noise, dtype=float)
+        if not self.range_pulls:                   # the ranges kept, no pull
+            w = np.zeros_like(w)
         return range_gain(w, mu, cov, a, q.reshape(n, 2, 2), self.dt, MIN_HOME_POSITIONS)
 
     def model(self, frame_id: str = 'map', datum=None):

@@ -77,6 +77,16 @@ PARAMS = {
         range=(0, 1000000),
         doc=('Samples an agent needs in a cell for its centre to be kept in the '
              'saved model.')),
+    'range_pulls': Param(
+        True,
+        ('publish each animal\'s range and place in the herd with the pulls at their '
+         'edges, and save them in the model'),
+        doc=('Publish each animal\'s range and its place in the herd with the pulls at '
+             'their edges\n'
+             '(/herd/model/home, /herd/model/place: robots stay in their animals\' ranges '
+             'and places)\n'
+             'and save them in the model file; false = the learned law alone (zero gains '
+             'published).')),
     'interaction_radius': Param(
         60.0,
         'shared law: neighbours within this distance (m) interact',
@@ -211,7 +221,7 @@ TABLE = NodeTable('estimator', HEADER, PARAMS)
 LEARNER_OPTIONS = ('law', 'field_grid', 'field_bounds', 'forgetting', 'p0', 'min_visits',
                    'interaction_radius', 'profile_size', 'robust', 'alignment',
                    'alignment_radius', 'alignment_size', 'alignment_neighbourhood',
-                   'alignment_nearest', 'regime_window')
+                   'alignment_nearest', 'regime_window', 'range_pulls')
 
 
 def check(values: dict) -> dict:
