@@ -344,9 +344,16 @@ def test_live_home_pull_from_the_estimator_topic(graph):
     rows[:, 0] = [30.0, -30.0, 0.0]
     rows[:, 2] = rows[:, 5] = 0.05
     rows[:, 6] = rows[:, 9] = 4.0
+    bad = rows.copy()
+    bad[1, 3] = np.nan                           # malformed: one clear warning, ignored
+    home.publish(matrix(bad, ('agent', 'mux')))
+    home.publish(matrix(rows[:, :6], ('agent', 'mux')))
+    ear.spin(1.0)
+    assert all(abs(m.linear.x) < 1e-9 for _, m in cmds['r1'][-3:]), 'a bad home was taken'
     ear.node.create_timer(0.3, lambda: home.publish(matrix(rows, ('agent', 'mux'))))
     assert ear.spin(10.0, until=lambda: cmds['r1'][-1][1].linear.x > 0.05
                     and cmds['r2'][-1][1].linear.x < -0.05)
+    assert '/herd/model/home: expected 30 finite numbers' in g.output('controller')
 
 
 def test_bad_parameters_exit_with_one_clear_line(ros_env, console_script):
