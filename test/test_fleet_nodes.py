@@ -241,6 +241,20 @@ def publish_structure(ear, model):
     return latched, structure
 
 
+def hold_robots(ear, positions: dict):
+    """Odometry of robots standing still at ``positions`` ({robot: (x, y)}), every 50 ms."""
+    pubs = {r: ear.node.create_publisher(Odometry, f'/fleet/{r}/odom', 10) for r in positions}
+
+    def publish():
+        for r, (x, y) in positions.items():
+            msg = Odometry()
+            msg.header.frame_id = 'map'
+            msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
+            msg.pose.pose.orientation.w = 1.0
+            pubs[r].publish(msg)
+    ear.node.create_timer(0.05, publish)
+
+
 def test_live_model_from_the_estimator_topic(graph):
     g, ear = graph
     cmds = {r: ear.record(Twist, f'/fleet/{r}/cmd_vel') for r in ('r1', 'r2')}
@@ -253,17 +267,7 @@ def test_live_model_from_the_estimator_topic(graph):
     # none of it)
     _, structure = publish_structure(ear, model)
     assert structure.n_params == theta.shape[1]
-    odom_pubs = {r: ear.node.create_publisher(Odometry, f'/fleet/{r}/odom', 10)
-                 for r in ('r1', 'r2')}
-
-    def publish_odom():
-        for r, x in (('r1', -1.0), ('r2', 1.0)):   # 2 m apart: well inside repulsion
-            msg = Odometry()
-            msg.header.frame_id = 'map'
-            msg.pose.pose.position.x = x
-            msg.pose.pose.orientation.w = 1.0
-            odom_pubs[r].publish(msg)
-    ear.node.create_timer(0.05, publish_odom)
+    hold_robots(ear, {'r1': (-1.0, 0.0), 'r2': (1.0, 0.0)})   # 2 m apart: well inside repulsion
     assert ear.spin(15.0, until=lambda: len(cmds['r1']) > 5)
     assert all(m.linear.x == 0.0 for _, m in cmds['r1']), 'moved before any model arrived'
     msg = Float64MultiArray()
@@ -324,17 +328,7 @@ def test_live_home_pull_from_the_estimator_topic(graph):
     from herd_ros.nodes.ros_common import tensor_message as matrix
     params = ear.node.create_publisher(Float64MultiArray, '/herd/model/params', 10)
     home = ear.node.create_publisher(Float64MultiArray, '/herd/model/home', 10)
-    odom_pubs = {r: ear.node.create_publisher(Odometry, f'/fleet/{r}/odom', 10)
-                 for r in ('r1', 'r2')}
-
-    def publish_odom():
-        for r, y in (('r1', -1.0), ('r2', 1.0)):
-            msg = Odometry()
-            msg.header.frame_id = 'map'
-            msg.pose.pose.position.y = y
-            msg.pose.pose.orientation.w = 1.0
-            odom_pubs[r].publish(msg)
-    ear.node.create_timer(0.05, publish_odom)
+    hold_robots(ear, {'r1': (0.0, -1.0), 'r2': (0.0, 1.0)})
     ear.node.create_timer(0.3, lambda: params.publish(matrix(theta, ('agent', 'param'))))
     assert ear.spin(15.0, until=lambda: len(cmds['r1']) > 20)
     assert all(abs(m.linear.x) < 1e-9 for _, m in cmds['r1'][-5:]), 'moved without a pull'

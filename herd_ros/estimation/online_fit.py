@@ -64,6 +64,7 @@ from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS, FieldGrid, RbfBasis
 from herd_ros.model.regressors import pairwise_columns
 from herd_ros.model.shared_law import (DistanceProfile, SharedLawModel,
                                        shared_rows)
+from herd_ros.model.space_use_field import range_gain
 
 LAWS = ('pairwise', 'shared')
 #: positions an agent needs before its home pull (:meth:`OnlineHerdEstimator.home_pull`) acts
@@ -677,7 +678,6 @@ class OnlineHerdEstimator:
         with np.errstate(invalid='ignore', divide='ignore'):
             mu = np.nan_to_num(total / w[:, None])
             cov = np.nan_to_num(sq / w[:, None, None] - mu[:, :, None] * mu[:, None, :])
-        from herd_ros.model.space_use_field import range_gain
         q = self.rls.noise_cov() if noise is None else np.asarray(noise, dtype=float)
         if not self.range_pulls:                   # the ranges kept, no pull
             w = np.zeros_like(w)
