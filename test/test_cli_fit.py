@@ -1,4 +1,5 @@
 """`herd-ros fit` / `simulate` / `synth` / `report` end to end, and bad input as one clear line."""
+import json
 import subprocess
 
 import numpy as np
@@ -34,6 +35,10 @@ def test_fit_simulate_report_round_trip(known_data, tmp_path, capsys):
                               '--report', tmp_path / 'rep'], capsys)
     assert status == 0
     assert 'constant velocity' in out and 'agent_1' in out
+    # the synthetic herd's noise is independent per animal: nothing shared, at any window
+    assert 'residuals shared by the herd' in out and 'moves together' not in out
+    shared = json.loads((tmp_path / 'rep' / 'summary.json').read_text())['shared_residuals']
+    assert shared['window_s'] and all(abs(c) < 0.1 for c in shared['correlation'])
     doc = yaml.safe_load(model_path.read_text())
     body = doc['/**']['ros__parameters']['model']
     assert body['kind'] == 'schwager2007' and body['agents'] == ['agent_1', 'agent_2', 'agent_3']

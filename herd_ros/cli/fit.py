@@ -198,6 +198,8 @@ def run(args) -> int:
             print(f'stability: {agent}: {entry["constrained"]}')
     from herd_ros.simulation.free_run import format_free_run
     print(format_free_run(summary['free_run'], per_agent=bool(args.report)))
+    from herd_ros.estimation.shared_residuals import format_shared_residuals
+    print(format_shared_residuals(summary['shared_residuals']))
     if args.report:
         from herd_ros.report.fit_figures import write_fit_figures
         paths = write_fit_figures(fit, summary, train, args.report)

@@ -33,5 +33,7 @@ def run(args) -> int:
     print('\n'.join(skill_lines(summary)))
     from herd_ros.simulation.free_run import format_free_run
     print(format_free_run(summary['free_run'], per_agent=True))
+    from herd_ros.estimation.shared_residuals import format_shared_residuals
+    print(format_shared_residuals(summary['shared_residuals']))
     print(f'report: {len(paths)} figures and summary.json in {args.out}')
     return 0

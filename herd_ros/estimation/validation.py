@@ -3,7 +3,8 @@
 * one-step and k-step RMS of the model next to constant velocity and stay-put (and, one
   step, the damping-only model fitted on the same training data), on held-out data (a
   time split);
-* whiteness of the velocity and of the residual w_i (autocorrelation bands, Ljung–Box);
+* whiteness of the velocity and of the residual w_i (autocorrelation bands, Ljung–Box),
+  and how much of the residual the herd shares (:mod:`~herd_ros.estimation.shared_residuals`);
 * interaction force curves F_ij(d) = θ1_ij − θ2_ij/d with 95 % confidence bands over the
   observed distances, and equilibrium distances with their intervals;
 * simulated vs real herd statistics (simulation of the learned laws with noise from Q_i).
@@ -13,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from herd_ros.estimation.herd_fit import HerdFit, aligned_positions
+from herd_ros.estimation.shared_residuals import shared_residuals
 from herd_ros.estimation.whiteness import whiteness
 from herd_ros.simulation.herd_simulator import simulate_from
 from herd_ros.simulation.prediction import damping_only_fit, k_step_rms, one_step_rms
@@ -170,6 +172,7 @@ def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajector
             'whiteness_velocity': wv.as_dict(), 'whiteness_residual': wr.as_dict(),
             'acf_velocity': wv.acf.tolist(), 'acf_residual': wr.acf.tolist(),
         }
+    summary['shared_residuals'] = shared_residuals(residuals, model.dt)
     summary['interaction'] = (force_curves(fit, train) if has_pairwise_interactions(model)
                               else {})
     if getattr(model, 'alignment', None) is not None:
