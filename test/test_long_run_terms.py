@@ -258,6 +258,7 @@ def test_the_online_estimator_keeps_each_animals_range(tmp_path):
     # the live home pull: the running mean and covariance of each animal's positions (with
     # the forgetting factor's weights), none before 10 positions; kept by checkpoints
     from herd_ros.estimation.online_fit import MIN_HOME_POSITIONS, OnlineHerdEstimator
+    from herd_ros.model.discrete_gain import discrete_gain
     rng = np.random.default_rng(3)
     steps = 200
     p = np.stack([rng.normal([10.0, -5.0], [3.0, 1.0], (steps, 2)),
@@ -278,7 +279,9 @@ def test_the_online_estimator_keeps_each_animals_range(tmp_path):
         np.testing.assert_allclose(mu[i], pts.mean(axis=0))
         np.testing.assert_allclose(cov[i], np.cov(pts.T, bias=True), rtol=1e-9)
         expected = 1.0 / (2.0 * (1.0 - a[i])) * q[i] @ np.linalg.inv(np.cov(pts.T, bias=True))
-        np.testing.assert_allclose(gain[i], expected, rtol=1e-9)
+        # (S2) on these moments, made exact on the clock by (G1) (test_discrete_gain.py)
+        np.testing.assert_allclose(gain[i], discrete_gain(expected[None], a[i:i + 1], 1.0)[0],
+                                   rtol=1e-9, atol=1e-12)
     # each one's place in the herd: its offset from the other (here: one other)
     both = np.isfinite(p).all(axis=(1, 2))
     d = p[both, 0] - p[both, 1]
@@ -340,13 +343,21 @@ def test_each_agents_place_in_the_herd_is_its_offset_from_the_others():
     slots = np.array([[-10.0, 0.0], [10.0, 0.0], [0.0, 15.0]])
     wobble = rng.normal(0.0, 1.0, (steps, 3, 2))
     positions = drift + slots + wobble
-    mean, gain, cov = herd_place(positions, np.full(3, 0.9), np.tile(np.eye(2), (3, 1, 1)),
-                                 1.0)
+    # noise small against the places (small steps): the gain is (S2)'s 5 Q Σ⁻¹
+    mean, gain, cov = herd_place(positions, np.full(3, 0.9),
+                                 np.tile(1e-4 * np.eye(2), (3, 1, 1)), 1.0)
     d = positions - (positions.sum(1, keepdims=True) - positions) / 2.0
     for i in range(3):
         np.testing.assert_allclose(mean[i], d[:, i].mean(0))
         np.testing.assert_allclose(cov[i], np.cov(d[:, i].T, bias=True), rtol=1e-9)
-        np.testing.assert_allclose(gain[i], 5.0 * np.linalg.inv(cov[i]), rtol=1e-9)
+        small_step = 5e-4 * np.linalg.inv(cov[i])
+        np.testing.assert_allclose(gain[i], small_step, atol=0.02 * np.abs(small_step).max())
+    # noise that no pull can hold to these places at this clock (K Δt of (S2) ≈ 3.4, beyond
+    # the loop's stability edge 1 − a = 0.1): the tightest stable gain instead (G1)
+    _, loud, _ = herd_place(positions, np.full(3, 0.9), np.tile(np.eye(2), (3, 1, 1)), 1.0)
+    for i in range(3):
+        c = np.real(np.linalg.eigvals(loud[i]))
+        assert (c > 0).all() and (c < 0.1).all()
     meta = {'herd_place': (mean, gain, cov)}
     at_slots = (slots - slots.mean(0))[None] + np.array([[500.0, -300.0]])
     assert np.allclose(place_drift(meta, at_slots), 0.0, atol=1e-9)

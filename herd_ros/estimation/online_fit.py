@@ -58,7 +58,7 @@ import numpy as np
 from herd_ros.errors import HerdInputError
 from herd_ros.estimation.rls import HerdRLS
 from herd_ros.model.herd_model import AgentLaw, HerdModel
-from herd_ros.model.herd_place import place_offsets
+from herd_ros.model.herd_place import place_coupling, place_offsets
 from herd_ros.model.model_file import atomic_open
 from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS, FieldGrid, RbfBasis
 from herd_ros.model.regressors import pairwise_columns
@@ -669,9 +669,10 @@ class OnlineHerdEstimator:
         from the others' centroid and the gain of the pull at that range's edge (the home
         pull of :meth:`home_pull` in the herd's frame: a travelling herd's robots keep
         together). Same conditions and arguments as :meth:`home_pull`."""
-        return self._range(self.place_w, self.place_sum, self.place_sq, theta, noise)
+        return self._range(self.place_w, self.place_sum, self.place_sq, theta, noise,
+                           coupling=place_coupling(len(self.agents)))
 
-    def _range(self, w, total, sq, theta, noise):
+    def _range(self, w, total, sq, theta, noise, coupling: float = 1.0):
         """(mean, gain, covariance) of running moments (weight, Σ x, Σ x xᵀ)."""
         n = len(self.agents)
         a = (self.rls.theta if theta is None else np.asarray(theta, dtype=float))[:, 0]
@@ -681,7 +682,8 @@ class OnlineHerdEstimator:
         q = self.rls.noise_cov() if noise is None else np.asarray(noise, dtype=float)
         if not self.range_pulls:                   # the ranges kept, no pull
             w = np.zeros_like(w)
-        return range_gain(w, mu, cov, a, q.reshape(n, 2, 2), self.dt, MIN_HOME_POSITIONS)
+        return range_gain(w, mu, cov, a, q.reshape(n, 2, 2), self.dt, MIN_HOME_POSITIONS,
+                          coupling)
 
     def model(self, frame_id: str = 'map', datum=None):
         """The current estimate as a model (HerdModel or SharedLawModel), lazily pruned;

@@ -67,7 +67,14 @@ def herd_place(positions: np.ndarray, damping, noise_cov, dt: float,
         e = np.where(ok[..., None], d - m, 0.0)
         s = np.einsum('tni,tnj->nij', e, e) / n[:, None, None]
     return range_gain(n, np.nan_to_num(m), np.nan_to_num(s), damping, noise_cov, dt,
-                      min_samples)
+                      min_samples, coupling=place_coupling(d.shape[1]))
+
+
+def place_coupling(n_agents: int) -> float:
+    """κ = N/(N − 1): an offset from the others' centroid moves κ times as far as its
+    animal when every animal is pulled to its place (the gain and the noise of the offset
+    are κ times each animal's; :mod:`herd_ros.model.discrete_gain`)."""
+    return n_agents / (n_agents - 1.0) if n_agents > 1 else 1.0
 
 
 def place_drift(meta: dict | None, positions: np.ndarray) -> np.ndarray | float:

@@ -53,6 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from herd_ros.errors import HerdInputError
+from herd_ros.model.discrete_gain import discrete_gain
 from herd_ros.model.rbf_field import FieldGrid, RbfBasis
 
 #: Bins per bandwidth of the binned positions and of the evaluation grid.
@@ -178,19 +179,22 @@ def home_gain(cov: np.ndarray, damping, noise_cov: np.ndarray, dt: float) -> np.
     return scale[..., None, None] * q @ inv
 
 
-def range_gain(weight, mean, cov, damping, noise_cov, dt: float, min_samples: int = 10):
+def range_gain(weight, mean, cov, damping, noise_cov, dt: float, min_samples: int = 10,
+               coupling: float = 1.0):
     """(mean (N, 2), K (N, 2, 2), cov (N, 2, 2)) of a range for the edge pull: K_i of
-    :func:`home_gain` for the range's covariance where agent i has ``min_samples`` (its
-    ``weight`` (N,)), a spread and damping a_i < 1, else 0."""
+    :func:`home_gain` for the range's covariance, made exact and stable on the clock of
+    ``dt`` (:func:`~herd_ros.model.discrete_gain.discrete_gain`, (G1); ``coupling`` κ for a
+    range of offsets from the others' centroid), where agent i has ``min_samples`` (its
+    ``weight`` (N,)), a spread and damping −1 < a_i < 1, else 0."""
     a = np.asarray(damping, dtype=float)
     q = np.asarray(noise_cov, dtype=float)
     cov = np.asarray(cov, dtype=float)
     gain = np.zeros_like(cov)
     top = np.linalg.eigvalsh(cov)[:, -1]
-    ok = ((np.asarray(weight) >= min_samples) & (a < 1.0) & (top > 0)
+    ok = ((np.asarray(weight) >= min_samples) & (np.abs(a) < 1.0) & (top > 0)
           & np.isfinite(q).all(axis=(1, 2)))
     if ok.any():
-        gain[ok] = home_gain(cov[ok], a[ok], q[ok], dt)
+        gain[ok] = discrete_gain(home_gain(cov[ok], a[ok], q[ok], dt), a[ok], dt, coupling)
     return np.asarray(mean, dtype=float), gain, cov
 
 
