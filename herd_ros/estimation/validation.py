@@ -16,6 +16,7 @@ import numpy as np
 from herd_ros.estimation.herd_fit import HerdFit, aligned_positions
 from herd_ros.estimation.shared_residuals import shared_residuals
 from herd_ros.estimation.whiteness import whiteness
+from herd_ros.nan_stats import empty_slices_quiet
 from herd_ros.simulation.herd_simulator import simulate_from
 from herd_ros.simulation.prediction import damping_only_fit, k_step_rms, one_step_rms
 from herd_ros.simulation.statistics import herd_statistics, relative_differences
@@ -73,7 +74,7 @@ def damping_only_rms(train, runs, agents) -> dict:
             errs.append(p[1:-1] + a[None, :, None] * (p[1:-1] - p[:-2]) - p[2:])
     e = np.concatenate(errs)
     sq = (e ** 2).sum(-1)
-    with np.errstate(invalid='ignore'):
+    with empty_slices_quiet():
         out = {ag: float(np.sqrt(np.nanmean(sq[:, i]))) for i, ag in enumerate(agents)}
         out['herd'] = float(np.sqrt(np.nanmean(sq)))
     return out
@@ -100,7 +101,7 @@ def last_raw_fix_rms(runs, agents) -> dict | None:
     if not errs:
         return None
     sq = (np.concatenate(errs) ** 2).sum(-1)
-    with np.errstate(invalid='ignore'):
+    with empty_slices_quiet():
         out = {ag: float(np.sqrt(np.nanmean(sq[:, i]))) for i, ag in enumerate(agents)}
         out['herd'] = float(np.sqrt(np.nanmean(sq)))
     return out

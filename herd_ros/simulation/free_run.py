@@ -18,11 +18,9 @@ and the median's relative difference to the data's.
 """
 from __future__ import annotations
 
-import contextlib
-import warnings
-
 import numpy as np
 
+from herd_ros.nan_stats import empty_slices_quiet
 from herd_ros.trajectory import HerdTrajectory
 
 STATISTICS = ('distance', 'spread', 'pace', 'mean_speed', 'std_speed')
@@ -41,7 +39,7 @@ def shape_and_pace(positions: np.ndarray, dt: float, pace_window_s: float = PACE
     T, n = p.shape[:2]
     d = np.sqrt(((p[:, None] - p[:, :, None]) ** 2).sum(-1))            # (T, N, N)
     d[:, np.arange(n), np.arange(n)] = np.nan
-    with _quiet():
+    with empty_slices_quiet():
         mean_d = np.nanmean(d, axis=2)                                  # (T, N)
         distance = np.nanmean(mean_d, axis=0)
         spread = np.nanstd(mean_d, axis=0)
@@ -54,14 +52,6 @@ def shape_and_pace(positions: np.ndarray, dt: float, pace_window_s: float = PACE
         mean_speed, std_speed = np.nanmean(v, axis=0), np.nanstd(v, axis=0)
     return {'distance': distance, 'spread': spread, 'pace': pace,
             'mean_speed': mean_speed, 'std_speed': std_speed}
-
-
-@contextlib.contextmanager
-def _quiet():
-    """numpy's "mean of empty slice" warnings off (an animal absent throughout is NaN)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore', RuntimeWarning)
-        yield
 
 
 def free_run_fidelity(model, run: HerdTrajectory, seeds: int = SEEDS) -> dict:
@@ -92,7 +82,7 @@ def free_run_fidelity(model, run: HerdTrajectory, seeds: int = SEEDS) -> dict:
 
     per_agent = {a: {k: row(data[k][i], [s[k][i] for s in sims]) for k in STATISTICS}
                  for i, a in enumerate(agents)}
-    with _quiet():
+    with empty_slices_quiet():
         herd = {k: row(np.nanmean(data[k]), [np.nanmean(s[k]) for s in sims])
                 for k in STATISTICS}
     return {'steps': int(run.n_steps), 'seeds': int(seeds), 'agents': agents, 'herd': herd,

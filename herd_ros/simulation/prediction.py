@@ -15,6 +15,7 @@ import numpy as np
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import HerdModel
 from herd_ros.model.velocity_memory import remember
+from herd_ros.nan_stats import empty_slices_quiet
 from herd_ros.trajectory import HerdTrajectory
 
 METHODS = ('model', 'constant_velocity', 'stay_put')
@@ -24,7 +25,7 @@ def _rms(err: np.ndarray, axis=None) -> np.ndarray:
     """RMS of the Euclidean errors (..., 2), over the finite ones (a missing agent or
     neighbour leaves NaN: not a prediction, not counted)."""
     sq = (err ** 2).sum(-1)
-    with np.errstate(invalid='ignore'):
+    with empty_slices_quiet():
         return np.sqrt(np.nanmean(sq, axis=axis))
 
 
