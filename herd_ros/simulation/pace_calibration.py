@@ -52,7 +52,8 @@ import math
 
 import numpy as np
 
-from herd_ros.simulation.free_run import PACE_WINDOW_S, _quiet, shape_and_pace
+from herd_ros.nan_stats import empty_slices_quiet
+from herd_ros.simulation.free_run import PACE_WINDOW_S, shape_and_pace
 
 #: the fixed-point iterations of (C1)
 ITERATIONS = 4
@@ -146,15 +147,15 @@ def calibrate_noise_scale(model, positions, *, iterations: int = ITERATIONS,
         per_seed = []
         for seed in range(seeds):
             s_all = [_segment_paces(m, p, starts, length, seed) for p, starts, length in plan]
-            with _quiet():
+            with empty_slices_quiet():
                 per_seed.append(np.nanmean(np.concatenate(s_all), axis=0))
         per_seed = np.array(per_seed)
-        with _quiet(), np.errstate(divide='ignore', invalid='ignore'):
+        with empty_slices_quiet(), np.errstate(divide='ignore', invalid='ignore'):
             return (np.nanmean(per_seed, axis=0),
                     np.nanstd(np.log(per_seed), axis=0, ddof=1) if seeds > 1
                     else np.zeros(n))
 
-    with _quiet():
+    with empty_slices_quiet():
         data = np.nanmean(np.concatenate([_data_paces(p, starts, length, model.dt)
                                           for p, starts, length in plan]), axis=0)
     sim, spread = paces(scale)
@@ -214,7 +215,7 @@ def calibrate_noise_scale(model, positions, *, iterations: int = ITERATIONS,
 def describe_calibration(result: dict, agents) -> str:
     """One line for ``herd-ros fit``: the factors' range and the herd's pace before/after."""
     s = np.asarray(result['scale'], dtype=float)
-    with _quiet():
+    with empty_slices_quiet():
         d, a, b = (float(np.nanmean(result[k])) for k in ('data_pace', 'uncalibrated_pace',
                                                           'sim_pace'))
     text = (f'noise scale: {np.nanmin(s):.2f}-{np.nanmax(s):.2f} (median {np.median(s):.2f}) '
