@@ -53,15 +53,16 @@ EXPORTS = {
         ('i8', 1, False), ('f8', 1, False), ('f8', 1, False), ('f8', 1, False),
         ('i8', 1, False), ('f8', 3, False),
         # the bank: t, x, P, ever, last_pos, last_report, counters, n_cand, cand_jump,
-        # cand_len, cand_t, cand_z, cand_r
+        # cand_len, cand_t, cand_z, cand_r, range moments
         ('f8', 1, True), ('f8', 2, True), ('f8', 3, True), ('b1', 1, True),
         ('f8', 1, True), ('f8', 1, True), ('i8', 2, True), ('i8', 1, True),
         ('b1', 2, True), ('i8', 2, True), ('f8', 3, True), ('f8', 4, True),
-        ('f8', 5, True),
+        ('f8', 5, True), ('f8', 2, True),
         # accel_std (N,), velocity_tau (N,), max_speed, cruise_speed, sprint_s, gate,
-        # gate_sigma, v0, confirm, reacquire, confirm_lost, reinit_after_gap
+        # gate_sigma, v0, confirm, reacquire, confirm_lost, reinit_after_gap,
+        # range_sigmas, range_margin, range_min
         ('f8', 1, False), ('f8', 1, False), 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'i8', 'i8',
-        'i8', 'f8',
+        'i8', 'f8', 'f8', 'f8', 'i8',
         # walk_accel (<= 0: none), walk_tau, walk_prob, walk_r2
         'f8', 'f8', 'f8', 'f8',
         # out: code, d2, x, P, segment

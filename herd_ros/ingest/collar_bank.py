@@ -153,6 +153,8 @@ class CollarBank:
         self.cand_t = np.zeros((n, MAX_CANDIDATES, L))
         self.cand_z = np.zeros((n, MAX_CANDIDATES, L, 2))
         self.cand_r = np.zeros((n, MAX_CANDIDATES, L, 2, 2))
+        # [n, Σx, Σy, Σx², Σxy, Σy²] of each collar's accepted states: its range
+        self.range_moments = np.zeros((n, 6))
         self.accel_std = np.full(n, float(self.params.accel_std))
         self.velocity_tau = np.full(n, float(self.params.velocity_tau))
         self.position_std = np.full(n, float(self.params.default_position_std))
@@ -238,12 +240,13 @@ class CollarBank:
             collar, stamp, east, north, status, R,
             self.t, self.x, self.P, self.ever, self.last_position_fix, self.last_report,
             self.counters, self.n_candidates, self.cand_jump, self.cand_len, self.cand_t,
-            self.cand_z, self.cand_r,
+            self.cand_z, self.cand_r, self.range_moments,
             self.accel_std, self.velocity_tau, float(p.max_speed),
             float(p.cruise_speed), float(p.sprint_s), gate, math.sqrt(gate),
             float(p.initial_velocity_std or p.max_speed),
             int(p.confirm_fixes), int(p.reacquire_fixes),
             int(p.confirm_fixes_lost), float(p.reinit_after_gap),
+            float(p.range_sigmas), float(p.range_margin), int(p.range_min_fixes),
             float(p.walk[0]) if p.walk is not None else 0.0,
             float(p.walk[1]) if p.walk is not None else 0.0, float(p.walk_probability),
             float(p.walk_position_std or 0.0) ** 2,

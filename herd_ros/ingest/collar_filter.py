@@ -74,6 +74,22 @@ through the rest; counter ``reinitialised``) when:
   only broke up, letting the rest of the burst start a new, reachable chain that was
   adopted after three fixes.
 
+**Far outside the collar's range.** Over minutes almost everything is "reachable", so the
+speed envelope alone lets a burst a few hundred metres off, or kilometres off after a
+long interval, confirm on ``confirm_fixes``. A chain whose first fix lies far outside the
+range the collar has kept so far — the running mean μ and covariance Σ of its accepted
+states, once it has ``range_min_fixes`` — is treated as a jump and needs
+``reacquire_fixes``: Mahalanobis r = √(dᵀ (Σ + 1 m² I)⁻¹ d) > ``range_sigmas`` with
+d = z − μ, and ‖d‖ more than ``range_margin`` (200 m) beyond 3 √λ_max(Σ + I) — whether or
+not the track's gate would take the fix. Measured on the duty-cycled herds of
+``test/bench/bench_tracking.py`` (the range of the track's own states before each fix,
+3 seeds): the rule takes 96 % of the cows' burst fixes and 98 % of the steers' and none of
+their 13 623 and 45 695 genuine ones (with a 100 m margin: 3 genuine cows' fixes, and the
+cows' relocations between grazing places were followed late). A genuine move far beyond
+the range is followed after ``reacquire_fixes`` fixes instead of ``confirm_fixes``, and the
+range grows to take it in. The same rule applies to a lost track's first chain (and a fix
+inside the range joins no such chain).
+
 Any fix the track accepts closes the open candidates (the burst is over). Isolated outliers
 in random directions never form a chain.
 
@@ -134,6 +150,11 @@ class FilterParams:
         reacquire_fixes: consistent fixes that confirm a candidate that began with a jump.
         confirm_fixes_lost: consistent fixes that start a lost (or new) track.
         reinit_after_gap: a gap (s) after which the track is lost (the old state is dropped).
+        range_sigmas, range_margin, range_min_fixes: a candidate whose first fix is farther
+            than ``range_sigmas`` (Mahalanobis) and ``range_margin`` metres beyond 3 σ_max
+            from the range of the collar's accepted states (once it has
+            ``range_min_fixes``) needs ``reacquire_fixes`` (module docstring);
+            ``range_sigmas`` 0 turns the rule off.
         walk_accel_std, walk_velocity_tau: a second, broader motion model (a walk) beside
             the collar's own (fitted) one; None = none. The motion model is then a
             two-component scale mixture of Q ("graze" with the own model, "walk" with
@@ -168,6 +189,9 @@ class FilterParams:
     walk_velocity_tau: float | None = None
     walk_probability: float = 0.05
     walk_position_std: float | None = None
+    range_sigmas: float = 6.0
+    range_margin: float = 200.0
+    range_min_fixes: int = 30
 
     def __post_init__(self):
         positive = ('accel_std', 'default_position_std', 'position_std_floor', 'max_speed',
@@ -203,7 +227,14 @@ class FilterParams:
         if not 0.0 < self.walk_probability < 1.0:
             raise HerdInputError('filter parameter walk_probability must be in (0, 1), got '
                                  f'{self.walk_probability!r}')
-        for name in ('confirm_fixes', 'reacquire_fixes', 'confirm_fixes_lost'):
+        if not (np.isfinite(self.range_sigmas) and self.range_sigmas >= 0):
+            raise HerdInputError('filter parameter range_sigmas must be >= 0 (0 = off), got '
+                                 f'{self.range_sigmas!r}')
+        if not (np.isfinite(self.range_margin) and self.range_margin >= 0):
+            raise HerdInputError('filter parameter range_margin must be >= 0, got '
+                                 f'{self.range_margin!r}')
+        for name in ('confirm_fixes', 'reacquire_fixes', 'confirm_fixes_lost',
+                     'range_min_fixes'):
             if int(getattr(self, name)) < 1:
                 raise HerdInputError(f'filter parameter {name} must be >= 1, '
                                      f'got {getattr(self, name)!r}')
@@ -229,6 +260,24 @@ class FilterParams:
         tau = np.maximum(np.asarray(tau, dtype=float), 0.0)
         sprint = np.minimum(tau, self.sprint_s)
         return self.max_speed * sprint + self.cruise_speed * (tau - sprint)
+
+
+def outside_range(moments, z, sigmas: float, margin: float, min_fixes: int) -> bool:
+    """Whether ``z`` (2,) is far outside the range of a collar's accepted states,
+    ``moments`` = [n, Σx, Σy, Σx², Σxy, Σy²] (FilterParams.range_sigmas, the module
+    docstring); False before ``min_fixes`` states or with ``sigmas`` 0."""
+    n = float(moments[0])
+    if sigmas <= 0 or n < max(int(min_fixes), 1):
+        return False
+    mx, my = moments[1] / n, moments[2] / n
+    a = moments[3] / n - mx * mx + 1.0
+    b = moments[4] / n - mx * my
+    c = moments[5] / n - my * my + 1.0
+    dx, dy = float(z[0]) - mx, float(z[1]) - my
+    det = a * c - b * b
+    r2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+    top = 0.5 * (a + c) + math.sqrt(0.25 * (a - c) ** 2 + b * b)
+    return bool(r2 > sigmas * sigmas and math.hypot(dx, dy) - 3.0 * math.sqrt(top) > margin)
 
 
 @dataclass
@@ -407,6 +456,7 @@ class CollarFilter:
         self.candidates: list[_Candidate] = []
         self._ever_initialised = False
         self._last_position_fix = -np.inf     # stamp of the last fix with a position
+        self.range_moments = np.zeros(6)      # [n, Σx, Σy, Σx², Σxy, Σy²] of accepted states
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -444,6 +494,21 @@ class CollarFilter:
     def update(self, stamp: float, east: float, north: float, *, status: int = 0,
                position_covariance=None, position_covariance_type: int = 0) -> FixResult:
         """Process one fix (stamp in s of data time, east/north in m about the datum)."""
+        result = self._update(stamp, east, north, status, position_covariance,
+                              position_covariance_type)
+        if result.accepted:                  # the state joins the collar's range
+            e, n = self.x[0], self.x[1]
+            self.range_moments += (1.0, e, n, e * e, e * n, n * n)
+        return result
+
+    def _far(self, z) -> bool:
+        """The fix is far outside the collar's range (:func:`outside_range`)."""
+        p = self.params
+        return outside_range(self.range_moments, z, p.range_sigmas, p.range_margin,
+                             p.range_min_fixes)
+
+    def _update(self, stamp, east, north, status, position_covariance,
+                position_covariance_type) -> FixResult:
         p = self.params
         stamp = float(stamp)
         if np.isfinite(stamp):
@@ -510,6 +575,10 @@ class CollarFilter:
                 return self._candidate_fix(stamp, z, r, 'speed' if cand.jump else 'gate',
                                            cand.jump, 'continues a chain of rejected fixes',
                                            d2=d2, chain=cand)
+        if self._far(z):
+            return self._candidate_fix(stamp, z, r, 'gate', True,
+                                       f'{dist:.0f} m from the track, far outside the range '
+                                       f'the collar has kept', d2=d2)
         if gate_d2 > self._gate:
             return self._candidate_fix(stamp, z, r, 'gate', False,
                                        f'Mahalanobis distance² {gate_d2:.1f} exceeds the '
@@ -587,11 +656,15 @@ class CollarFilter:
         """The fix continues ``cand``: within reach of one of its fixes."""
         return self._reach_ratio(cand, stamp, z, r) <= 1.0
 
-    def _attach(self, stamp, z, r, jump: bool, chain=None) -> _Candidate:
-        """Append the fix to ``chain``, to the newest consistent candidate, or to a new one."""
+    def _attach(self, stamp, z, r, jump: bool, chain=None, near: bool = False
+                ) -> _Candidate:
+        """Append the fix to ``chain``, to the newest consistent candidate, or to a new one
+        (``near``: a fix inside the collar's range, which joins no chain that began with a
+        jump)."""
         if chain is None:
             chain = next((c for c in reversed(self.candidates)
-                          if self._consistent(c, stamp, z, r)), None)
+                          if self._consistent(c, stamp, z, r) and not (near and c.jump)),
+                         None)
         if chain is None:
             chain = _Candidate([], jump)
             self.candidates.append(chain)
@@ -601,8 +674,10 @@ class CollarFilter:
 
     def _lost_fix(self, stamp, z, r) -> FixResult:
         """A fix while there is no track: confirm a chain of ``confirm_fixes_lost`` fixes."""
-        chain = self._attach(stamp, z, r, jump=False)
-        need = int(self.params.confirm_fixes_lost)
+        far = self._far(z)
+        chain = self._attach(stamp, z, r, jump=far, near=not far)
+        need = int(self.params.reacquire_fixes if chain.jump
+                   else self.params.confirm_fixes_lost)
         if len(chain.fixes) < need:
             self.counters['rejected_unconfirmed'] += 1
             return FixResult(False, 'unconfirmed', f'track lost or not started: waiting for '
@@ -625,7 +700,7 @@ class CollarFilter:
             return self._reject(reason, detail, d2)
         self._adopt(chain)
         self.counters['reinitialised'] += 1
-        kind = 'beyond reach' if chain.jump else 'outside the gate'
+        kind = 'beyond reach or far outside its range' if chain.jump else 'outside the gate'
         return FixResult(True, 'reinitialised', f'{need} consistent fixes {kind}: the track '
                          f'moved to them', d2)
 

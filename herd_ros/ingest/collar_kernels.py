@@ -235,12 +235,35 @@ def _chain_distance(i, c, z0, z1, cand_len, cand_z):
 
 
 @_jit
+def _far(i, z0, z1, rng, sigmas, margin, min_fixes):
+    """collar_filter.outside_range for collar i: ``rng`` (N, 6) = [n, Σx, Σy, Σx², Σxy,
+    Σy²] of its accepted states."""
+    n = rng[i, 0]
+    if sigmas <= 0.0 or n < max(min_fixes, 1):
+        return False
+    mx = rng[i, 1] / n
+    my = rng[i, 2] / n
+    a = rng[i, 3] / n - mx * mx + 1.0
+    b = rng[i, 4] / n - mx * my
+    c = rng[i, 5] / n - my * my + 1.0
+    dx = z0 - mx
+    dy = z1 - my
+    det = a * c - b * b
+    r2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+    top = 0.5 * (a + c) + math.sqrt(0.25 * (a - c) * (a - c) + b * b)
+    return r2 > sigmas * sigmas and math.hypot(dx, dy) - 3.0 * math.sqrt(top) > margin
+
+
+@_jit
 def _attach(i, chain, stamp, z0, z1, r, jump, n_cand, cand_jump, cand_len, cand_t, cand_z,
-            cand_r, max_speed, cruise_speed, sprint_s, gate_sigma):
+            cand_r, max_speed, cruise_speed, sprint_s, gate_sigma, near=False):
     """CollarFilter._attach: append the fix to ``chain`` (≥ 0), the newest consistent
-    chain, or a new one (dropping the oldest beyond MAX_CANDIDATES); its index."""
+    chain (not one that began with a jump when the fix is ``near``), or a new one
+    (dropping the oldest beyond MAX_CANDIDATES); its index."""
     if chain < 0:
         for c in range(n_cand[i] - 1, -1, -1):
+            if near and cand_jump[i, c]:
+                continue
             if _reach_ratio(i, c, stamp, z0, z1, r, cand_len, cand_t, cand_z, cand_r,
                             max_speed, cruise_speed, sprint_s, gate_sigma) <= 1.0:
                 chain = c
@@ -301,15 +324,17 @@ def _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t, cand_z, 
 @_jit
 def process_batch(collar, stamp, east, north, status, R,
                    t, x, P, ever, last_pos, last_report, counters, n_cand, cand_jump,
-                   cand_len, cand_t, cand_z, cand_r,
+                   cand_len, cand_t, cand_z, cand_r, rng,
                    accel_std, velocity_tau, max_speed, cruise_speed, sprint_s, gate,
                    gate_sigma, v0, confirm, reacquire, confirm_lost, reinit_after_gap,
+                   range_sigmas, range_margin, range_min,
                    walk_accel, walk_tau, walk_prob, walk_r2,
                    out_code, out_d2, out_x, out_P, out_seg):
     """CollarFilter.update for each fix of the batch, in order (see its comments);
     ``accel_std`` and ``velocity_tau`` are per collar (N,); ``walk_accel`` ≤ 0 = no walk
     component (else the motion mixture of FilterParams.walk, prior weight ``walk_prob``,
-    its fixes' variance raised by ``walk_r2``)."""
+    its fixes' variance raised by ``walk_r2``); ``rng`` (N, 6) the moments of each
+    collar's accepted states (its range: a chain far outside it needs ``reacquire``)."""
     xp = np.empty(4)
     Pp = np.empty((4, 4))
     xw = np.empty(4)
@@ -352,10 +377,11 @@ def process_batch(collar, stamp, east, north, status, R,
             chain = -1
             reason = -1                     # rejection reason if the chain is not adopted
             if not math.isfinite(t[i]):
-                chain = _attach(i, -1, s, z0, z1, r, False, n_cand, cand_jump, cand_len,
+                far = _far(i, z0, z1, rng, range_sigmas, range_margin, range_min)
+                chain = _attach(i, -1, s, z0, z1, r, far, n_cand, cand_jump, cand_len,
                                 cand_t, cand_z, cand_r, max_speed, cruise_speed, sprint_s,
-                                gate_sigma)
-                if cand_len[i, chain] < confirm_lost:
+                                gate_sigma, not far)
+                if cand_len[i, chain] < (reacquire if cand_jump[i, chain] else confirm_lost):
                     code = UNCONFIRMED
                     counters[i, C_UNCONF] += 1
                 else:
@@ -407,6 +433,12 @@ def process_batch(collar, stamp, east, north, status, R,
                                             max_speed, cruise_speed, sprint_s, gate_sigma)
                             reason = SPEED if cand_jump[i, c] else GATE
                             break
+                    if chain < 0 and _far(i, z0, z1, rng, range_sigmas, range_margin,
+                                          range_min):
+                        reason = GATE             # far outside the collar's range
+                        chain = _attach(i, -1, s, z0, z1, r, True, n_cand, cand_jump,
+                                        cand_len, cand_t, cand_z, cand_r, max_speed,
+                                        cruise_speed, sprint_s, gate_sigma)
                     if chain < 0 and gate_d2 > gate:
                         reason = GATE
                         chain = _attach(i, -1, s, z0, z1, r, False, n_cand, cand_jump,
@@ -448,6 +480,14 @@ def process_batch(collar, stamp, east, north, status, R,
         out_d2[m] = d2
         out_seg[m] = counters[i, C_REINIT]
         if code == ACCEPTED or code == REINITIALISED:
+            e = x[i, 0]
+            nn = x[i, 1]
+            rng[i, 0] += 1.0                # the state joins the collar's range
+            rng[i, 1] += e
+            rng[i, 2] += nn
+            rng[i, 3] += e * e
+            rng[i, 4] += e * nn
+            rng[i, 5] += nn * nn
             out_x[m] = x[i]
             if keep_P:
                 out_P[m] = P[i]

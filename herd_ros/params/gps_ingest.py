@@ -220,6 +220,29 @@ PARAMS = {
         ('consistent fixes that replace a track from beyond reach (outlier '
          'bursts never reach it)'),
         range=(1, 10000)),
+    'range_sigmas': Param(
+        6.0,
+        ('a candidate this many σ outside the collar\'s range needs reacquire_fixes '
+         '(0 = off)'),
+        range=(0.0, 1000.0),
+        doc=('\n'
+             'Each collar keeps the range of its accepted states (running mean and '
+             'covariance).\n'
+             'A fix farther than range_sigmas (Mahalanobis) and range_margin metres '
+             'beyond 3 σ\n'
+             'of it, once the collar has range_min_fixes states, starts a candidate '
+             'that needs\n'
+             'reacquire_fixes, as a jump: over minutes a burst a few hundred metres '
+             'off is\n'
+             '"within reach", not within the animal\'s range.')),
+    'range_margin': Param(
+        200.0,
+        'metres beyond 3 σ of the range a fix must also be to count as far outside it',
+        range=(0.0, 1000000.0)),
+    'range_min_fixes': Param(
+        30,
+        'accepted states a collar needs before its range is used',
+        range=(1, 1000000)),
     'confirm_fixes_lost': Param(
         2,
         'consistent fixes that start a new track',
@@ -349,7 +372,8 @@ TABLE = NodeTable('gps_ingest', HEADER, PARAMS)
 FILTER_FIELDS = ('accel_std', 'velocity_tau', 'default_position_std', 'position_std_floor',
                  'gate_probability', 'max_speed', 'cruise_speed', 'sprint_s', 'stale_after',
                  'initial_velocity_std', 'confirm_fixes', 'reacquire_fixes',
-                 'confirm_fixes_lost', 'reinit_after_gap', 'walk_probability')
+                 'confirm_fixes_lost', 'reinit_after_gap', 'walk_probability',
+                 'range_sigmas', 'range_margin', 'range_min_fixes')
 #: history depth of each /herd/<agent>/odom publisher (of odom_topic: this times the collars)
 ODOM_DEPTH = 10
 
