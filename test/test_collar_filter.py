@@ -135,7 +135,7 @@ def test_rejection_reasons_and_counters():
     assert f.t == 3.0
     assert f.counters == {'accepted': 2, 'rejected_no_fix': 1, 'rejected_nan': 2,
                           'rejected_time': 2, 'rejected_gate': 0, 'rejected_speed': 1,
-                          'rejected_unconfirmed': 1, 'reinitialised': 0}
+                          'rejected_range': 0, 'rejected_unconfirmed': 1, 'reinitialised': 0}
     # STATUS_UNKNOWN (-2, Jazzy) is not NO_FIX: it is gated like any fix
     assert f.update(5.0, 1.0, 1.0, status=-2).accepted
 

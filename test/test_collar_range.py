@@ -62,6 +62,8 @@ def test_a_reachable_burst_far_outside_the_range_never_moves_the_track():
     t, z, b0, b1 = burst_then_home()
     f, out = run(params(), t, z)
     assert not any(r.accepted for r in out[b0:b1])                # the burst: all refused
+    assert {r.reason for r in out[b0:b1]} == {'range'}            # and said why
+    assert f.counters['rejected_range'] == b1 - b0
     assert all(r.accepted for r in out[b1 + 1:])                  # home again: followed
     assert np.hypot(*f.x[:2]) < 30.0
     # without the range rule the same burst is adopted on its second fix

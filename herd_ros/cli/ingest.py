@@ -138,7 +138,8 @@ def run(args) -> int:
         shown = lost_most(counters, 10)
         total = {k: sum(c.get(k, 0) for c in counters.values()) for k in
                  ('accepted', 'rejected_no_fix', 'rejected_nan', 'rejected_time',
-                  'rejected_gate', 'rejected_speed', 'rejected_unconfirmed')}
+                  'rejected_gate', 'rejected_speed', 'rejected_range',
+                  'rejected_unconfirmed')}
         print(f'{len(counters)} collars: ' + ', '.join(
             f'{k.replace("rejected_", "")} {v}' for k, v in total.items())
             + f'; the {len(shown)} that lost the most fixes:')

@@ -40,8 +40,8 @@ import numpy as np
 from herd_ros.ingest import aot
 from herd_ros.ingest.collar_filter import COUNTERS, FilterParams
 from herd_ros.ingest.fix_outcomes import (  # noqa: F401 - the codes, named here too
-    ACCEPTED, GATE, MAX_CANDIDATES, NAN, NO_FIX, OUTCOMES, REINITIALISED, SPEED, TIME,
-    UNCONFIRMED)
+    ACCEPTED, GATE, MAX_CANDIDATES, NAN, NO_FIX, OUTCOMES, RANGE, REINITIALISED, SPEED,
+    TIME, UNCONFIRMED)
 
 #: the compiled loops this process runs (:func:`herd_ros.ingest.aot.load_kernels`):
 #: ``KERNELS.kind`` is ``'aot'`` (built at install, no numba in the process) or ``'jit'``

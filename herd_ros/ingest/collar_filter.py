@@ -125,7 +125,7 @@ COVARIANCE_TYPE_KNOWN = 3
 
 #: Counter names, in the order diagnostics list them.
 COUNTERS = ('accepted', 'rejected_no_fix', 'rejected_nan', 'rejected_time', 'rejected_gate',
-            'rejected_speed', 'rejected_unconfirmed', 'reinitialised')
+            'rejected_speed', 'rejected_range', 'rejected_unconfirmed', 'reinitialised')
 
 _H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 
@@ -287,7 +287,8 @@ class FixResult:
     Attributes:
         accepted: the fix updated the state (also true for the fix that re-initialised it).
         reason: ``'accepted'``, ``'reinitialised'`` or the rejection reason
-            (``'no_fix'``, ``'nan'``, ``'time'``, ``'speed'``, ``'gate'``).
+            (``'no_fix'``, ``'nan'``, ``'time'``, ``'speed'``, ``'gate'``, ``'range'``,
+            ``'unconfirmed'``).
         detail: one human-readable sentence (for diagnostics and logs).
         mahalanobis2: squared Mahalanobis distance of the innovation (NaN if not computed).
     """
@@ -569,14 +570,16 @@ class CollarFilter:
         # a fix that continues an open chain better than it fits the track belongs to the
         # chain: a burst cannot make itself plausible by lasting long enough for the
         # track's envelope and gate to grow
+        far = self._far(z)
         for cand in reversed(self.candidates):
             if (self._consistent(cand, stamp, z, r)
                     and self._chain_distance(cand, z) < np.hypot(*y)):
-                return self._candidate_fix(stamp, z, r, 'speed' if cand.jump else 'gate',
-                                           cand.jump, 'continues a chain of rejected fixes',
+                reason = 'range' if far else ('speed' if cand.jump else 'gate')
+                return self._candidate_fix(stamp, z, r, reason, cand.jump,
+                                           'continues a chain of rejected fixes',
                                            d2=d2, chain=cand)
-        if self._far(z):
-            return self._candidate_fix(stamp, z, r, 'gate', True,
+        if far:
+            return self._candidate_fix(stamp, z, r, 'range', True,
                                        f'{dist:.0f} m from the track, far outside the range '
                                        f'the collar has kept', d2=d2)
         if gate_d2 > self._gate:

@@ -21,9 +21,10 @@ import numpy as np
 from numba import njit
 
 from herd_ros.ingest.fix_outcomes import (ACCEPTED, C_ACC, C_GATE, C_NAN, C_NO_FIX,
-                                          C_REINIT, C_SPEED, C_TIME, C_UNCONF, GATE,
-                                          MAX_CANDIDATES, NAN, NO_FIX, REINITIALISED, SPEED,
-                                          STATUS_NO_FIX, TIME, UNCONFIRMED)
+                                          C_RANGE, C_REINIT, C_SPEED, C_TIME, C_UNCONF,
+                                          GATE, MAX_CANDIDATES, NAN, NO_FIX, RANGE,
+                                          REINITIALISED, SPEED, STATUS_NO_FIX, TIME,
+                                          UNCONFIRMED)
 
 def _jit(fn):
     return njit(cache=True, nogil=True)(fn)
@@ -422,6 +423,7 @@ def process_batch(collar, stamp, east, north, status, R,
                     y0 = z0 - xp[0]
                     y1 = z1 - xp[1]
                     innovation = math.hypot(y0, y1)
+                    far = _far(i, z0, z1, rng, range_sigmas, range_margin, range_min)
                     for c in range(n_cand[i] - 1, -1, -1):
                         if (_reach_ratio(i, c, s, z0, z1, r, cand_len, cand_t, cand_z,
                                          cand_r, max_speed, cruise_speed, sprint_s,
@@ -431,11 +433,15 @@ def process_batch(collar, stamp, east, north, status, R,
                             chain = _attach(i, c, s, z0, z1, r, cand_jump[i, c], n_cand,
                                             cand_jump, cand_len, cand_t, cand_z, cand_r,
                                             max_speed, cruise_speed, sprint_s, gate_sigma)
-                            reason = SPEED if cand_jump[i, c] else GATE
+                            if far:
+                                reason = RANGE
+                            elif cand_jump[i, c]:
+                                reason = SPEED
+                            else:
+                                reason = GATE
                             break
-                    if chain < 0 and _far(i, z0, z1, rng, range_sigmas, range_margin,
-                                          range_min):
-                        reason = GATE             # far outside the collar's range
+                    if chain < 0 and far:
+                        reason = RANGE            # far outside the collar's range
                         chain = _attach(i, -1, s, z0, z1, r, True, n_cand, cand_jump,
                                         cand_len, cand_t, cand_z, cand_r, max_speed,
                                         cruise_speed, sprint_s, gate_sigma)
@@ -469,6 +475,8 @@ def process_batch(collar, stamp, east, north, status, R,
                         code = reason
                         if reason == SPEED:
                             counters[i, C_SPEED] += 1
+                        elif reason == RANGE:
+                            counters[i, C_RANGE] += 1
                         else:
                             counters[i, C_GATE] += 1
                     else:

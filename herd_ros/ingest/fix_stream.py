@@ -51,6 +51,8 @@ REJECTION_TEXT = {
     'speed': 'beyond reach of the track (max_speed, cruise_speed, sprint_s): an outlier '
              'unless more follow',
     'gate': 'outside the Mahalanobis gate',
+    'range': 'far outside the range its collar has kept (range_sigmas, range_margin): an '
+             'outlier unless reacquire_fixes follow',
     'unconfirmed': 'track lost or not started: waiting for consistent fixes',
 }
 
