@@ -434,6 +434,8 @@ class CollarFilter:
         counters: fixes per outcome, keys :data:`COUNTERS`.
         last_report: stamp of the latest fix seen, accepted or not (NaN before any).
         candidates: the open candidate tracks (at most :attr:`MAX_CANDIDATES`).
+        range_moments: [n, Σx, Σy, Σx², Σxy, Σy²] of the accepted states (the collar's
+            range, :func:`outside_range`).
     """
 
     #: open candidate chains kept at once (the oldest is dropped)
