@@ -255,13 +255,20 @@ def hold_robots(ear, positions: dict):
     ear.node.create_timer(0.05, publish)
 
 
+def topic_controller(g, ear, *params):
+    """A controller on the estimator's topics for robots r1, r2 (``params``: more
+    ``-p`` values), their recorded commands, and the 3-agent truth model and θ to send."""
+    cmds = {r: ear.record(Twist, f'/fleet/{r}/cmd_vel') for r in ('r1', 'r2')}
+    extra = [a for p in params for a in ('-p', p)]
+    g.start('controller', '--params-file', str(CONFIG / 'controller.yaml'),
+            '-p', 'robots:=[r1, r2]', '-p', 'model_source:=topic', *extra)
+    model = make_truth_model(3, seed=1)
+    return cmds, model, np.stack([model.laws[a].theta for a in model.agents])
+
+
 def test_live_model_from_the_estimator_topic(graph):
     g, ear = graph
-    cmds = {r: ear.record(Twist, f'/fleet/{r}/cmd_vel') for r in ('r1', 'r2')}
-    g.start('controller', '--params-file', str(CONFIG / 'controller.yaml'),
-            '-p', 'robots:=[r1, r2]', '-p', 'model_source:=topic', '-p', 'max_speed:=0.8')
-    model = make_truth_model(3, seed=1)
-    theta = np.stack([model.laws[a].theta for a in model.agents])
+    cmds, model, theta = topic_controller(g, ear, 'max_speed:=0.8')
     params = ear.node.create_publisher(Float64MultiArray, '/herd/model/params', 10)
     # what the estimator publishes, latched: how to read the rows (the controller declares
     # none of it)
@@ -287,10 +294,7 @@ def test_live_noise_regimes_from_the_estimator_topic(graph):
     # robots' law: the controller says which noise its robots draw
     g, ear = graph
     diags = ear.record(DiagnosticArray, '/diagnostics')
-    g.start('controller', '--params-file', str(CONFIG / 'controller.yaml'),
-            '-p', 'robots:=[r1, r2]', '-p', 'model_source:=topic', '-p', 'noise:=true')
-    model = make_truth_model(3, seed=1)
-    theta = np.stack([model.laws[a].theta for a in model.agents])
+    _, model, theta = topic_controller(g, ear, 'noise:=true')
     latched, _ = publish_structure(ear, model)
     q = np.stack([model.laws[a].noise_cov for a in model.agents])
     regimes = np.concatenate([np.stack([0.1 * q, 4.0 * q], axis=1).reshape(3, 2, 4),
@@ -318,11 +322,7 @@ def test_live_home_pull_from_the_estimator_topic(graph):
     # alone leaves robots standing until the pull arrives, then drives them towards their
     # animals' ranges
     g, ear = graph
-    cmds = {r: ear.record(Twist, f'/fleet/{r}/cmd_vel') for r in ('r1', 'r2')}
-    g.start('controller', '--params-file', str(CONFIG / 'controller.yaml'),
-            '-p', 'robots:=[r1, r2]', '-p', 'model_source:=topic', '-p', 'max_speed:=0.8')
-    model = make_truth_model(3, seed=1)
-    theta = np.stack([model.laws[a].theta for a in model.agents])
+    cmds, model, theta = topic_controller(g, ear, 'max_speed:=0.8')
     theta[:, 1:] = 0.0                           # no pair law, no field: damping alone
     publish_structure(ear, model)
     from herd_ros.nodes.ros_common import tensor_message as matrix

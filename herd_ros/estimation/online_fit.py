@@ -642,11 +642,9 @@ class OnlineHerdEstimator:
         not the prior's guesses where the herd never was), and the home pull (μ, K, Σ) of
         :meth:`home_pull` for that θ and the noise the robots draw (the stationary mean of
         :meth:`published_regimes`: the herd's present pace)."""
-        from herd_ros.model.noise_regimes import stationary_distribution
+        from herd_ros.model.noise_regimes import stationary_mean
         theta, _ = self.pruned_estimate(self.kept_centers())
-        cov, trans = self.published_regimes()
-        noise = np.stack([np.einsum('k,kij->ij', stationary_distribution(t), c)
-                          for c, t in zip(cov, trans)])
+        noise = stationary_mean(*self.published_regimes())
         return theta, self.home_pull(theta, noise), self.herd_place(theta, noise)
 
     def home_pull(self, theta=None, noise=None):

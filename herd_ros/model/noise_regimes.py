@@ -79,6 +79,14 @@ def stationary_distribution(transition: np.ndarray) -> np.ndarray:
     return pi / pi.sum()
 
 
+def stationary_mean(covariances, transition) -> np.ndarray:
+    """Σ_k π_ik Q_ik per agent: the stationary mean (N, 2, 2) of regime covariances
+    (N, K, 2, 2) under transitions (N, K, K) — the noise level a chain keeps on average."""
+    return np.stack([np.einsum('k,kij->ij', stationary_distribution(t), c)
+                     for c, t in zip(np.asarray(covariances, dtype=float),
+                                     np.asarray(transition, dtype=float))])
+
+
 def fit_regimes(residuals: np.ndarray, n_regimes: int, iterations: int = 200,
                 tol: float = 1e-6) -> dict:
     """Baum–Welch for one agent: residuals (T, 2) (NaN = missing) -> {covariances (K, 2, 2),
@@ -365,9 +373,9 @@ def regimes_scaled_to(covariances, transition, noise_cov):
     cov = np.array(covariances, dtype=float, copy=True)
     trans = np.asarray(transition, dtype=float)
     q = np.asarray(noise_cov, dtype=float)
+    means = stationary_mean(cov, trans)
     for i in range(len(cov)):
-        mean = np.einsum('k,kij->ij', stationary_distribution(trans[i]), cov[i])
-        target, have = float(np.trace(q[i])), float(np.trace(mean))
+        target, have = float(np.trace(q[i])), float(np.trace(means[i]))
         if target > 0 and have > 0 and np.isfinite(have):
             cov[i] *= target / have
         else:
