@@ -3,7 +3,8 @@ noise reproduces its data exactly when run freely."""
 import numpy as np
 import pytest
 
-from herd_ros.simulation.free_run import free_run_fidelity, format_free_run, shape_and_pace
+from herd_ros.simulation.free_run import (format_free_run, free_run_fidelity, observed_like,
+                                          shape_and_pace)
 from herd_ros.simulation.herd_simulator import simulate
 from herd_ros.synthesis.known_truth import initial_positions, make_truth_model
 from herd_ros.trajectory import HerdTrajectory
@@ -44,3 +45,31 @@ def test_a_noisy_law_spreads_its_runs():
     r = free_run_fidelity(truth, HerdTrajectory(run.times, run.agents, run.positions),
                           seeds=3)['herd']['mean_speed']
     assert r['min'] < r['max'] and r['min'] <= r['median'] <= r['max']
+
+
+def test_runs_are_seen_where_the_data_are():
+    """A collar silent for a stretch changes who "the others" are; the noise-free truth, run
+    freely and seen like its data, still reproduces them exactly — seen whole, it would not."""
+    truth = make_truth_model(3, seed=1, noise_std=0.0)
+    run = simulate(truth, 800, initial_positions(truth, seed=1, spread=25), seed=0)
+    p = run.positions.copy()
+    p[200:700, 2] = np.nan                 # the third collar silent for 500 steps
+    gappy = HerdTrajectory(run.times, run.agents, p)
+    result = free_run_fidelity(truth, gappy, seeds=2)
+    for stat, row in result['herd'].items():
+        assert row['relative'] == pytest.approx(0.0, abs=1e-9), stat
+    whole = shape_and_pace(run.positions, truth.dt)      # the run, seen whole
+    seen = shape_and_pace(p, truth.dt)
+    assert not np.allclose(whole['spread'], seen['spread'], rtol=0.05)
+
+
+def test_observed_like_aligns_a_run_that_starts_late():
+    times = np.arange(6.0)
+    data = np.zeros((6, 2, 2))
+    data[0, 0] = np.nan                    # no complete snapshot at 0: the run starts at 1
+    data[3, 1] = np.nan
+    sim = HerdTrajectory(times[1:], ['a', 'b'], np.ones((5, 2, 2)))
+    seen, span = observed_like(sim, data, times)
+    assert seen.shape == span.shape == (5, 2, 2)
+    assert np.isnan(seen[2, 1]).all() and np.isfinite(np.delete(seen, 2, axis=0)).all()
+    assert np.isfinite(seen[:, 0]).all()

@@ -15,6 +15,17 @@ then the herd's mean over animals:
 
 Each statistic of the runs is summarised by its median over seeds and the range (min, max),
 and the median's relative difference to the data's.
+
+**Like with like.** Every animal runs for the whole run, but the data miss animals: a
+collar that starts late, stops for hours or ends early. A statistic over "the others" then
+changes with who is present — when a collar 1.3 km from the herd falls silent, the others'
+mean distance to the others drops by hundreds of metres, and the data's ``spread`` is mostly
+that. So a run is observed as the data were (:func:`observed_like`): at each step, an animal
+absent from the data is absent from the run, and both are compared over the run's span —
+the observation process applied to the simulation, as in simulated-moment methods
+(Gouriéroux, Monfort & Renault 1993). On a 72-hour three-steer herd with one steer 1.3 km
+off and duty-cycled collars, the unobserved runs' spread was 11 m against the data's 148 m;
+observed like the data, 151 m.
 """
 from __future__ import annotations
 
@@ -54,9 +65,24 @@ def shape_and_pace(positions: np.ndarray, dt: float, pace_window_s: float = PACE
             'mean_speed': mean_speed, 'std_speed': std_speed}
 
 
+def observed_like(sim: HerdTrajectory, data: np.ndarray, data_times: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(run positions, data positions), both (T', N, 2) over the run's span, the run's
+    NaN wherever the data's animal is absent (module docstring: like with like). ``sim``
+    covers a tail of ``data_times`` (a free run starts at the data's first complete
+    snapshot) on the same clock; ``data`` (T, N, 2) in the run's agent order."""
+    data = np.asarray(data, dtype=float)
+    k0 = int(np.searchsorted(np.asarray(data_times, dtype=float), float(sim.times[0]) - 1e-9))
+    span = data[k0:k0 + sim.n_steps]
+    pos = np.asarray(sim.positions, dtype=float)[:len(span)]
+    absent = ~np.isfinite(span).all(axis=-1)
+    return np.where(absent[..., None], np.nan, pos), span
+
+
 def free_run_fidelity(model, run: HerdTrajectory, seeds: int = SEEDS) -> dict:
     """The law of ``model`` run freely from the start of ``run`` for its length (``seeds``
-    noise seeds, :func:`~herd_ros.simulation.herd_simulator.simulate_from`) against ``run``.
+    noise seeds, :func:`~herd_ros.simulation.herd_simulator.simulate_from`) against ``run``,
+    each run observed like the data (:func:`observed_like`).
 
     Returns {'steps', 'seeds', 'agents', 'herd': {stat: row}, 'per_agent': {agent: {stat:
     row}}} with row = {'data', 'median', 'min', 'max', 'relative'} (relative = median/data −
@@ -65,12 +91,15 @@ def free_run_fidelity(model, run: HerdTrajectory, seeds: int = SEEDS) -> dict:
     from herd_ros.simulation.herd_simulator import simulate_from
     agents = list(model.agents)
     order = [run.agents.index(a) for a in agents]
-    data = shape_and_pace(run.positions[:, order], model.dt)
+    positions = run.positions[:, order]
+    data = None
     sims = []
     for seed in range(seeds):
-        sim = simulate_from(model, HerdTrajectory(run.times, agents,
-                                                  run.positions[:, order]), seed=seed)
-        sims.append(shape_and_pace(sim.positions, model.dt))
+        sim = simulate_from(model, HerdTrajectory(run.times, agents, positions), seed=seed)
+        seen, span = observed_like(sim, positions, run.times)
+        if data is None:                  # the same span for every seed
+            data, steps = shape_and_pace(span, model.dt), len(span)
+        sims.append(shape_and_pace(seen, model.dt))
 
     def row(values_data, values_sims):
         arr = np.asarray(values_sims, dtype=float)
@@ -85,7 +114,7 @@ def free_run_fidelity(model, run: HerdTrajectory, seeds: int = SEEDS) -> dict:
     with empty_slices_quiet():
         herd = {k: row(np.nanmean(data[k]), [np.nanmean(s[k]) for s in sims])
                 for k in STATISTICS}
-    return {'steps': int(run.n_steps), 'seeds': int(seeds), 'agents': agents, 'herd': herd,
+    return {'steps': int(steps), 'seeds': int(seeds), 'agents': agents, 'herd': herd,
             'per_agent': per_agent}
 
 

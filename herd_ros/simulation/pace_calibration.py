@@ -34,7 +34,8 @@ that pace, and a factor chosen there would only fit chance.
 
 The free runs start from evenly spaced snapshots of every training run
 (:func:`segment_starts`), each for at most ``segment_steps`` steps, and the data's pace is
-taken over the same segments.
+taken over the same segments; each run is seen where the data are
+(:func:`~herd_ros.simulation.free_run.observed_like`).
 
 The mean prediction is untouched (one-step skill and the estimator's predictions are the
 same); the prediction covariance keeps Q_i (the one-step residuals are what a prediction is
@@ -53,7 +54,7 @@ import math
 import numpy as np
 
 from herd_ros.nan_stats import empty_slices_quiet
-from herd_ros.simulation.free_run import PACE_WINDOW_S, shape_and_pace
+from herd_ros.simulation.free_run import PACE_WINDOW_S, observed_like, shape_and_pace
 
 #: the fixed-point iterations of (C1)
 ITERATIONS = 4
@@ -99,8 +100,9 @@ def _segment_paces(model, positions, starts, length, seed):
         run = HerdTrajectory(times[s0:s0 + length], list(model.agents), seg)
         sim = simulate_from(model, run, seed=None if seed is None else seed * 1009 + k)
         # the run's segment may start later (the first snapshot with every agent): the
-        # simulation covers the segment's end
-        sims.append(shape_and_pace(sim.positions, model.dt)['pace'])
+        # simulation covers the segment's end, seen where the data are (observed_like)
+        seen, _ = observed_like(sim, seg, run.times)
+        sims.append(shape_and_pace(seen, model.dt)['pace'])
     return np.array(sims)
 
 
