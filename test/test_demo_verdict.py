@@ -3,7 +3,7 @@ whether every statistic is within the bar."""
 import numpy as np
 import pytest
 
-from herd_ros.report.demo_report import PASS_BAR, verdict
+from herd_ros.report.demo_report import PASS_BAR, seen_like_animals, verdict
 from herd_ros.trajectory import HerdTrajectory
 
 
@@ -47,3 +47,16 @@ def test_published_skill_on_a_finer_herd_clock_scores_the_same_model_steps():
     assert fine['model'] == pytest.approx(3.0) and fine['samples'] == plain['samples'] > 0
     for m in ('model', 'constant_velocity', 'stay_put', 'damping_only'):
         assert fine[m] == pytest.approx(plain[m]), m
+
+
+def test_robots_are_seen_like_their_animals():
+    cows = HerdTrajectory(np.array([0.0, 10.0, 20.0, 30.0]), ['a', 'b'], np.zeros((4, 2, 2)))
+    cows.positions[2, 0] = np.nan                     # a's collar silent at 20 s
+    robots = HerdTrajectory(np.array([-5.0, 5.0, 15.0, 25.0, 35.0, 45.0]), ['r1', 'r2'],
+                            np.ones((6, 2, 2)))
+    seen = seen_like_animals(cows, robots, ['a', 'b'])
+    r1, r2 = np.isfinite(seen.positions[:, 0, 0]), np.isfinite(seen.positions[:, 1, 0])
+    # before the first snapshot, and more than a clock step after the last: nobody
+    assert r1.tolist() == [False, True, True, False, True, False]
+    assert r2.tolist() == [False, True, True, True, True, False]
+    assert np.isfinite(robots.positions).all()        # the input is left alone

@@ -101,7 +101,8 @@ def run(args) -> int:
     summary = run_live_demo(bag, args.out, rate=args.rate, dt=args.dt, herd_file=args.herd)
     print(f'\ndemo done in {time.perf_counter() - t0:.0f} s: {summary["herd_snapshots"]} herd '
           f'snapshots, {summary["model_updates"]} model updates, {summary["robot_samples"]} '
-          f'robot samples. Herd statistics, animals vs robots (mean over the herd):')
+          f'robot samples. Herd statistics, animals vs robots (mean over the herd; each robot '
+          f'seen where its animal has a herd pose):')
     cows, robots = summary['cows'], summary['robots']
     for key in ('mean_distance', 'std_distance', 'mean_speed', 'std_speed'):
         c = sum(v[key] for v in cows.values()) / max(len(cows), 1)

@@ -8,6 +8,13 @@ Plain numpy/matplotlib (no rclpy): the demo node records arrays, this turns them
 * ``fig_statistics.png`` — herd statistics bars, robots vs cows (Schwager et al. Fig. 6);
 * ``summary.json`` — ``cows`` and ``robots``: {name: {mean_distance, std_distance,
   mean_speed, std_speed}}, plus ``relative_difference`` per assigned pair and run facts.
+
+The robots run all the time; the animals' herd poses miss an animal whose collar is silent
+(stale) or not yet, or no longer, reporting, and a statistic over "the others" changes with
+who is present. So the robots are seen like their animals (:func:`seen_like_animals`: a
+robot's sample where its animal has no herd pose is left out), the observation applied to
+both sides as in :func:`herd_ros.simulation.free_run.observed_like`; ``robots_all_samples``
+keeps the robots' statistics over every sample.
 """
 from __future__ import annotations
 
@@ -88,6 +95,26 @@ def _finite_rows(traj: HerdTrajectory) -> HerdTrajectory:
     return HerdTrajectory(traj.times[keep], list(traj.agents), traj.positions[keep])
 
 
+def seen_like_animals(cows: HerdTrajectory, robots: HerdTrajectory,
+                      assignment) -> HerdTrajectory:
+    """``robots`` with each robot's sample NaN where its animal (``assignment``, in robot
+    order) has no herd pose: the last herd snapshot at or before the sample (within one
+    herd-clock step) lacks it, or there is none."""
+    p = np.array(robots.positions, dtype=float)
+    if cows.n_steps == 0 or robots.n_steps == 0:
+        return robots
+    steps = np.diff(cows.times)
+    step = float(np.median(steps)) if len(steps) else np.inf
+    k = np.searchsorted(cows.times, robots.times, side='right') - 1
+    late = (k < 0) | (robots.times - cows.times[np.maximum(k, 0)] > step * (1 + 1e-9))
+    for j, a in enumerate(assignment):
+        if a not in cows.agents:
+            continue
+        present = np.isfinite(cows.positions[:, cows.agents.index(a)]).all(-1)
+        p[late | ~present[np.maximum(k, 0)], j] = np.nan
+    return HerdTrajectory(robots.times, list(robots.agents), p)
+
+
 #: a robot passes when each of its statistics is within this of its animal's (issue 30)
 PASS_BAR = 0.30
 
@@ -122,7 +149,9 @@ def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
     out.mkdir(parents=True, exist_ok=True)
     cows, robots = _finite_rows(cows), _finite_rows(robots)
     cow_stats = herd_statistics(cows) if cows.n_steps >= 2 else {}
-    robot_stats = herd_statistics(robots) if robots.n_steps >= 2 else {}
+    every_sample = herd_statistics(robots) if robots.n_steps >= 2 else {}
+    seen = _finite_rows(seen_like_animals(cows, robots, assignment))
+    robot_stats = herd_statistics(seen) if seen.n_steps >= 2 else {}
     rel = {}
     for r, a in zip(robots.agents, assignment):
         if r in robot_stats and a in cow_stats:
@@ -148,7 +177,8 @@ def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
         statistics_figure(cow_stats, by_cow, out / 'fig_statistics.png', labels=('cows',
                                                                                   'robots'))
         figures.append('fig_statistics.png')
-    summary = {'cows': cow_stats, 'robots': robot_stats, 'assignment': dict(zip(robots.agents,
+    summary = {'cows': cow_stats, 'robots': robot_stats, 'robots_all_samples': every_sample,
+               'assignment': dict(zip(robots.agents,
                                                                                assignment)),
                'relative_difference': rel, 'herd_relative_difference': herd_rel,
                'verdict': verdict(cows, robots, assignment, rel, herd_rel),
