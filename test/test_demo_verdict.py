@@ -60,3 +60,16 @@ def test_robots_are_seen_like_their_animals():
     assert r1.tolist() == [False, True, True, False, True, False]
     assert r2.tolist() == [False, True, True, True, True, False]
     assert np.isfinite(robots.positions).all()        # the input is left alone
+
+
+def test_robots_are_matched_to_herd_ticks_by_their_stamps():
+    """Fleet poses arrive out of order and in bursts at high replay rates: each herd tick
+    takes the last snapshot stamped at or before it, none before the first or when the
+    fleet had not got there (more than two fleet steps since its last snapshot)."""
+    from herd_ros.cli.live_demo import robots_at
+    stamps = [10.0, 0.0, 20.0, 30.0]                 # the 0 s snapshot arrived second
+    xy = np.array([[[1.0, 1.0]], [[0.0, 0.0]], [[2.0, 2.0]], [[3.0, 3.0]]])
+    at = robots_at([-1.0, 0.0, 5.0, 10.0, 25.0, 30.0, 45.0, 51.0], stamps, xy)[:, 0, 0]
+    assert np.isnan(at[0]) and np.isnan(at[-1])
+    assert at[1:-1].tolist() == [0.0, 0.0, 1.0, 2.0, 3.0, 3.0]
+    assert np.isnan(robots_at([1.0, 2.0], [], np.zeros((0, 1, 2)))).all()

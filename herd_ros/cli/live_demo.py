@@ -11,8 +11,9 @@ robots' start and speed and the replay rate come from the bag
 (:func:`herd_ros.herd_setup.herd_setup_from_fixes`).
 
 A small recorder node keeps what the report needs: the herd snapshots (``/herd/poses``), the
-estimator's one-step predictions as published (``/herd/model/prediction``), the robots at the
-same ticks (``/fleet/poses``) and the learned parameters over time (``/herd/model/params``).
+estimator's one-step predictions as published (``/herd/model/prediction``), the robots'
+poses with their own stamps (``/fleet/poses``, matched to the herd ticks by time afterwards:
+:func:`robots_at`) and the learned parameters over time (``/herd/model/params``).
 """
 from __future__ import annotations
 
@@ -23,21 +24,46 @@ from pathlib import Path
 
 import numpy as np
 
+def robots_at(times, fleet_times, fleet_xy) -> np.ndarray:
+    """The robots' positions (T, R, 2) at herd ticks ``times``, from fleet snapshots
+    ``fleet_xy`` (F, R, 2) stamped ``fleet_times`` (F,): the last fleet snapshot
+    stamped at or before each tick (NaN before the first, and more than two fleet steps after
+    a snapshot: the fleet had not got there). By stamp, not by arrival: with the
+    bag played hundreds of times faster than real time, the fleet's poses reach the recorder
+    in bursts, and the latest one received at a herd tick can be minutes of herd time off
+    (robots seemed to jump 100 m in 30 s)."""
+    times = np.asarray(times, dtype=float)
+    ft = np.asarray(fleet_times, dtype=float)
+    xy = np.asarray(fleet_xy, dtype=float)              # (F, R, 2)
+    if not len(ft):
+        return np.full((len(times),) + xy.shape[1:], np.nan)
+    order = np.argsort(ft, kind='stable')
+    ft, xy = ft[order], xy[order]
+    k = np.searchsorted(ft, times + 1e-9, side='right') - 1
+    out = np.full((len(times),) + xy.shape[1:], np.nan)
+    steps = np.diff(np.unique(ft))
+    reach = 2.0 * float(np.median(steps)) if len(steps) else np.inf
+    ok = (k >= 0) & (times - ft[np.maximum(k, 0)] <= reach + 1e-9)
+    out[ok] = xy[k[ok]]
+    return out
+
+
 class DemoRecorder:
-    """Records herd snapshots, robot poses at the same ticks and parameters over time."""
+    """Records herd snapshots, the robots' stamped poses and parameters over time."""
 
     def __init__(self, node, n_robots: int):
         from geometry_msgs.msg import PoseArray
         from std_msgs.msg import Float64MultiArray
         self.node = node
         self.lock = threading.Lock()
-        self.herd_times, self.herd, self.robots = [], [], []
+        self.herd_times, self.herd = [], []
+        self.fleet_times, self.fleet = [], []
         self.param_times, self.params = [], []
         self.pred_times, self.preds = [], []
         self.latest_robots = np.full((n_robots, 2), np.nan)
         self.robots_moved = False
-        node.create_subscription(PoseArray, '/herd/poses', self.on_herd, 100)
-        node.create_subscription(PoseArray, '/fleet/poses', self.on_fleet, 100)
+        node.create_subscription(PoseArray, '/herd/poses', self.on_herd, 1000)
+        node.create_subscription(PoseArray, '/fleet/poses', self.on_fleet, 1000)
         node.create_subscription(Float64MultiArray, '/herd/model/params', self.on_params, 100)
         node.create_subscription(PoseArray, '/herd/model/prediction', self.on_prediction, 100)
         self.first_fleet = None
@@ -48,12 +74,11 @@ class DemoRecorder:
         return pose_array_xy(msg)
 
     def on_herd(self, msg):
-        """Keep a /herd/poses snapshot with the robots' latest positions."""
+        """Keep a /herd/poses snapshot."""
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         with self.lock:
             self.herd_times.append(t)
             self.herd.append(self._xy(msg))
-            self.robots.append(self.latest_robots.copy())
 
     def on_prediction(self, msg):
         """Keep one of the estimator's one-step predictions."""
@@ -63,10 +88,13 @@ class DemoRecorder:
             self.preds.append(self._xy(msg))
 
     def on_fleet(self, msg):
-        """Keep the robots' latest positions and note when they first move."""
+        """Keep the robots' positions with their stamp and note when they first move."""
         xy = self._xy(msg)
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         with self.lock:
             if xy.shape == self.latest_robots.shape:
+                self.fleet_times.append(t)
+                self.fleet.append(xy)
                 if self.first_fleet is None:
                     self.first_fleet = xy.copy()
                 elif np.nanmax(np.abs(xy - self.first_fleet)) > 0.5:
@@ -215,7 +243,8 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     with recorder.lock:
         times = np.asarray(recorder.herd_times)
         cows = HerdTrajectory(times, agents, np.asarray(recorder.herd).reshape(-1, len(agents), 2))
-        rob = np.asarray(recorder.robots).reshape(-1, len(robots), 2)
+        rob = robots_at(times, recorder.fleet_times,
+                        np.asarray(recorder.fleet).reshape(-1, len(robots), 2))
         param_times, thetas = list(recorder.param_times), list(recorder.params)
         pred_times = np.asarray(recorder.pred_times)
         preds = np.asarray(recorder.preds).reshape(-1, len(agents), 2)
