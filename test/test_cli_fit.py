@@ -219,6 +219,29 @@ def test_simulate_starts_a_late_agent_where_it_is_first_seen(tmp_path, capsys):
     np.testing.assert_allclose(sim.positions[2], [[1.0 + 0.8, 0.0], [0.0, 13.5]])
 
 
+def test_simulate_compares_with_its_initial_trajectory_seen_like_it(tmp_path, capsys):
+    """With --initial on the model's clock, simulate prints the free-run statistics against
+    it (the run seen where the data are) and, with --seen-like-initial, writes each agent
+    only where the data have it: b starts late and is silent at steps 5-6."""
+    model = _damping_only_model(tmp_path)
+    rows = [f'{2.0 * t},a,{float(t)},0\n' for t in range(12)] + \
+        [f'{2.0 * t},b,0,{10.0 + t}\n' for t in range(2, 12) if t not in (5, 6)]
+    data = _write(tmp_path / 'gappy.csv', rows)
+    status, out, err = run_cli(['simulate', model, '--steps', '10', '--no-noise', '--initial',
+                                data, '-o', tmp_path / 'sim.csv', '--seen-like-initial'], capsys)
+    assert status == 0, err
+    assert 'against' in out and 'over 10 steps' in out and 'the run seen where the data are' \
+        in out and '(each agent where the initial trajectory has it)' in out
+    sim = read_trajectory_csv(tmp_path / 'sim.csv')[0]
+    present = np.isfinite(sim.positions).all(-1)
+    assert present[:, 0].all()
+    assert present[:, 1].tolist() == [False, False, True, True, True, False, False, True,
+                                      True, True]
+    status, _, err = run_cli(['simulate', model, '--steps', '10', '-o', tmp_path / 's.csv',
+                              '--seen-like-initial'], capsys)
+    assert status == 2 and '--seen-like-initial needs --initial' in err
+
+
 def test_fit_long_run_terms_write_the_field_and_regimes_and_simulate_uses_them(tmp_path, capsys):
     """`fit --field space-use --noise regimes` on two agents whose noise switches between
     resting and moving (u' = a u + w): the file carries the regimes and a space-use field,

@@ -9,7 +9,7 @@ from herd_ros.errors import HerdInputError
 from herd_ros.herd_dynamics import HerdDynamics
 from herd_ros.simulation.herd_simulator import first_pairs
 from herd_ros.simulation.statistics import herd_statistics
-from herd_ros.trajectory import write_trajectory_csv
+from herd_ros.trajectory import HerdTrajectory, write_trajectory_csv
 
 HELP = ('simulate the learned laws of a model file (noise from each agent\'s Q_i, or its '
         'noise regimes when the file has them, times its noise_scale)')
@@ -25,6 +25,10 @@ def add_arguments(p):
                                      'first two where it is present) start the simulation '
                                      '(default: agents on a ring about the field)')
     p.add_argument('--no-noise', action='store_true', help='deterministic simulation (w = 0)')
+    p.add_argument('--seen-like-initial', action='store_true',
+                   help='with --initial on the model\'s clock: write each agent only where '
+                        'the initial trajectory has it (silent, late and ended collars as in '
+                        'the data), the way the free-run figures compare a run with data')
 
 
 def default_initial_positions(model, seed=0):
@@ -53,6 +57,37 @@ def first_state(p: np.ndarray, dt: float, source) -> tuple[np.ndarray, np.ndarra
     return p[k, idx], (p[k + 1, idx] - p[k, idx]) / dt
 
 
+def aligned_data(run, positions, dt: float):
+    """(its time, the positions from there on) of the run's first step at which an agent
+    is present two steps in a row (where the simulation's first step stands; an agent that
+    starts later is started from its own first positions and is absent from the data until
+    then), when the run is on the model's clock; else None."""
+    steps = np.diff(run.times)
+    if not len(steps) or not np.allclose(steps, dt, rtol=1e-6, atol=1e-9):
+        return None
+    k0 = int(first_pairs(positions)[0].min())
+    return float(run.times[k0]), positions[k0:]
+
+
+def compare_with_data(traj, data, dt: float, source) -> str:
+    """The free-run statistics of the simulation against the initial trajectory over the
+    steps both cover, the simulation seen where the data are
+    (:func:`~herd_ros.simulation.free_run.observed_like`)."""
+    from herd_ros.simulation.free_run import STATISTICS, observed_like, shape_and_pace
+    seen, span = observed_like(traj, data, traj.times[0] + dt * np.arange(len(data)))
+    if len(span) < 4:
+        return f'(too few steps of {source} to compare with)'
+    with np.errstate(invalid='ignore', divide='ignore'):
+        d, r = shape_and_pace(span, dt), shape_and_pace(seen, dt)
+        cells = []
+        for k in STATISTICS:
+            a, b = float(np.nanmean(d[k])), float(np.nanmean(r[k]))
+            rel = f'{100 * (b / a - 1):+.0f} %' if a > 0 and np.isfinite(b) else 'n/a'
+            cells.append(f'{k.replace("_", " ")} {b:.3g} vs {a:.3g} ({rel})')
+    return (f'against {source} over {len(span)} steps (herd means; the run seen where the '
+            f'data are): ' + '; '.join(cells))
+
+
 def run(args) -> int:
     """Run the verb on the parsed ``args``; returns the exit status."""
     if args.steps < 2:
@@ -60,6 +95,9 @@ def run(args) -> int:
     dyn = HerdDynamics.load(args.model)
     model = dyn.model
     u0 = None
+    if args.seen_like_initial and not args.initial:
+        raise HerdInputError('--seen-like-initial needs --initial')
+    data = None
     if args.initial:
         runs, _ = load_runs(args.initial)
         r = runs[0]
@@ -68,15 +106,29 @@ def run(args) -> int:
             raise HerdInputError(f'{args.initial}: no data for agent(s) {", ".join(missing)}')
         p = r.positions[:, [r.agents.index(a) for a in model.agents]]
         p0, u0 = first_state(p, model.dt, args.initial)
+        data = aligned_data(r, p, model.dt)
+        if args.seen_like_initial and data is None:
+            raise HerdInputError(f'{args.initial}: --seen-like-initial needs a trajectory on '
+                                 f'the model\'s clock ({model.dt:g} s)')
     else:
         p0 = default_initial_positions(model, args.seed)
     bar = progress(total=args.steps, desc='simulating', unit='step')
     traj = dyn.simulate(p0, args.steps, u0, seed=args.seed, noise=not args.no_noise,
                         progress=bar.update)
     bar.close()
+    if data is not None:
+        print(compare_with_data(traj, data[1], model.dt, args.initial))
+        if args.seen_like_initial:
+            span = data[1][:traj.n_steps]
+            seen = traj.positions.copy()
+            seen[:len(span)][~np.isfinite(span).all(axis=-1)] = np.nan
+            seen[len(span):] = np.nan
+            traj = HerdTrajectory(traj.times, list(traj.agents), seen)
     write_trajectory_csv(args.output, traj)
     stats = herd_statistics(traj)
-    print(f'wrote {args.steps} steps of {model.n_agents} agents to {args.output}')
+    print(f'wrote {args.steps} steps of {model.n_agents} agents to {args.output}'
+          + (' (each agent where the initial trajectory has it)' if args.seen_like_initial
+             else ''))
     print(f'{"agent":>12} {"mean dist":>10} {"std dist":>10} {"mean speed":>11} {"std speed":>10}')
     for a, s in stats.items():
         print(f'{a:>12} {s["mean_distance"]:10.2f} {s["std_distance"]:10.2f} '
