@@ -58,15 +58,14 @@ def first_state(p: np.ndarray, dt: float, source) -> tuple[np.ndarray, np.ndarra
 
 
 def aligned_data(run, positions, dt: float):
-    """(its time, the positions from there on) of the run's first step at which an agent
-    is present two steps in a row (where the simulation's first step stands; an agent that
-    starts later is started from its own first positions and is absent from the data until
-    then), when the run is on the model's clock; else None."""
+    """The positions from the run's first step at which an agent is present two steps in a
+    row — where the simulation's first step stands (an agent that starts later is started
+    from its own first positions and is absent from the data until then) — when the run is
+    on the model's clock; else None."""
     steps = np.diff(run.times)
     if not len(steps) or not np.allclose(steps, dt, rtol=1e-6, atol=1e-9):
         return None
-    k0 = int(first_pairs(positions)[0].min())
-    return float(run.times[k0]), positions[k0:]
+    return positions[int(first_pairs(positions)[0].min()):]
 
 
 def compare_with_data(traj, data, dt: float, source) -> str:
@@ -117,9 +116,9 @@ def run(args) -> int:
                         progress=bar.update)
     bar.close()
     if data is not None:
-        print(compare_with_data(traj, data[1], model.dt, args.initial))
+        print(compare_with_data(traj, data, model.dt, args.initial))
         if args.seen_like_initial:
-            span = data[1][:traj.n_steps]
+            span = data[:traj.n_steps]
             seen = traj.positions.copy()
             seen[:len(span)][~np.isfinite(span).all(axis=-1)] = np.nan
             seen[len(span):] = np.nan

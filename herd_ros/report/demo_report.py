@@ -178,8 +178,7 @@ def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
                                                                                   'robots'))
         figures.append('fig_statistics.png')
     summary = {'cows': cow_stats, 'robots': robot_stats, 'robots_all_samples': every_sample,
-               'assignment': dict(zip(robots.agents,
-                                                                               assignment)),
+               'assignment': dict(zip(robots.agents, assignment)),
                'relative_difference': rel, 'herd_relative_difference': herd_rel,
                'verdict': verdict(cows, robots, assignment, rel, herd_rel),
                'figures': figures, **(facts or {})}
