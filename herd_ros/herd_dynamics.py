@@ -68,7 +68,8 @@ class FitOptions:
             number: that factor on every animal's noise std (1 = the residuals' noise, the
             paper's).
         alignment: velocity alignment (:mod:`herd_ros.model.alignment`): 'auto' (tried on
-            the chosen structure, kept if cross-validation does), 'off' or 'on' (always);
+            the chosen structure, kept if cross-validation does), 'off' or 'on' (the
+            structure chosen among the cross-validated candidates with alignment);
             ``alignment_neighbourhood`` 'radius' or 'nearest' (``alignment_nearest`` = k).
     """
 
@@ -194,9 +195,10 @@ class HerdDynamics:
                            memory=o.memory, memories=o.memories,
                            # auto: tried unless --terms pinned the structure
                            alignment=kernel if o.terms is None or o.alignment == 'on'
-                           else None)
-        if o.alignment == 'on' and sel.chosen.alignment is None:
-            sel.chosen = replace(sel.chosen, alignment=kernel)
+                           else None,
+                           # 'on': chosen among the alignment candidates (cross-validated,
+                           # so the table and the report have the chosen one's CV error)
+                           alignment_required=o.alignment == 'on')
         bar.close()
         bar = progress(total=len(agents), desc='fitting agents', unit='agent')
 

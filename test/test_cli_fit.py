@@ -282,3 +282,20 @@ def test_fit_long_run_terms_write_the_field_and_regimes_and_simulate_uses_them(t
     status, _, err = run_cli(['fit', data, '-o', tmp_path / 'x.yaml', '--online',
                               '--noise', 'regimes'], capsys)
     assert status == 2 and 'batch fit' in err and len(err.strip().splitlines()) == 1
+
+
+def test_fit_alignment_on_chooses_among_the_alignment_candidates(known_data, tmp_path,
+                                                                  capsys):
+    """A herd without alignment: cross-validation alone would not keep it, --alignment on
+    chooses among the cross-validated candidates that have it (it used to crash after the
+    selection: the forced structure was in no table)."""
+    model_path = tmp_path / 'aligned.yaml'
+    status, out, err = run_cli(['fit', known_data / 'data.csv', '-o', model_path, '--grid',
+                                '4x4', '--alignment', 'on', '--field', 'fitted', '--noise',
+                                'gaussian', '--report', tmp_path / 'rep'], capsys)
+    assert status == 0, err
+    chosen = [line for line in out.splitlines() if '<- chosen' in line]
+    assert len(chosen) == 1 and '+alignment' in chosen[0]
+    summary = json.loads((tmp_path / 'rep' / 'summary.json').read_text())
+    selection = summary['selection']
+    assert np.isfinite(selection['cv_rms']['selected']) and selection['alignment']

@@ -83,7 +83,8 @@ def add_arguments(p):
     p.add_argument('--alignment', choices=('auto', 'off', 'on'), default='auto',
                    help='velocity alignment: each agent matches its neighbours\' velocity '
                         'with a learned distance kernel; auto = tried on the chosen '
-                        'structure and kept only if cross-validation does')
+                        'structure and kept only if cross-validation does; on = the '
+                        'structure chosen among the candidates with alignment')
     p.add_argument('--alignment-neighbourhood', choices=('radius', 'nearest'),
                    default='radius',
                    help='the neighbours an agent aligns with: every one within the radius '

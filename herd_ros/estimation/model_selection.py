@@ -544,7 +544,7 @@ def _select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float
                   folds: int = FOLDS, ridges=RIDGES, grids=None, terms=None,
                   bounds=None, min_visits: int = DEFAULT_MIN_VISITS, law: str | None = None,
                   own_agents=None, progress=None, memory: float = 1.0,
-                  memories=MEMORIES, alignment='auto',
+                  memories=MEMORIES, alignment='auto', alignment_required: bool = False,
                   profile_radius: float | None = None) -> Selection:
     """Score every candidate by blocked CV and choose one (see the module docstring).
 
@@ -573,6 +573,8 @@ def _select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float
             terms), or None (not tried).
             Kept only if it earns its parameters under the same rule and lowers the CV mean
             squared error by at least :data:`ALIGNMENT_MIN_GAIN` (1 %).
+        alignment_required: choose among the alignment candidates only (``herd-ros fit
+            --alignment on``): the others stay in the table, scored, not eligible.
         profile_radius: the shared law's interaction radius (m); None:
             :func:`default_radius`.
     """
@@ -746,7 +748,9 @@ def _select_model(runs_positions: list[np.ndarray], agents: list[str], dt: float
         # structure it was tried on (a herd without alignment can still show a significant
         # but negligible gain where its other terms are misspecified); tried ones stay in
         # the table either way
-        if min(sse[s].sum() for s in group) > (1 - ALIGNMENT_MIN_GAIN) * before:
+        if alignment_required:
+            excluded.update(c for c in candidates if c.alignment is None)
+        elif min(sse[s].sum() for s in group) > (1 - ALIGNMENT_MIN_GAIN) * before:
             excluded.update(group)
         table, chosen = _one_standard_error(candidates, sse, n_params, count, dt, excluded)
     # last pass: the velocity memory of the chosen structure (one parameter of the herd)
