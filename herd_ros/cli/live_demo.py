@@ -60,7 +60,7 @@ class DemoRecorder:
         self.fleet_times, self.fleet = [], []
         self.param_times, self.params = [], []
         self.pred_times, self.preds = [], []
-        self.latest_robots = np.full((n_robots, 2), np.nan)
+        self.n_robots = int(n_robots)
         self.robots_moved = False
         node.create_subscription(PoseArray, '/herd/poses', self.on_herd, 1000)
         node.create_subscription(PoseArray, '/fleet/poses', self.on_fleet, 1000)
@@ -92,14 +92,13 @@ class DemoRecorder:
         xy = self._xy(msg)
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         with self.lock:
-            if xy.shape == self.latest_robots.shape:
+            if xy.shape == (self.n_robots, 2):
                 self.fleet_times.append(t)
                 self.fleet.append(xy)
                 if self.first_fleet is None:
                     self.first_fleet = xy.copy()
                 elif np.nanmax(np.abs(xy - self.first_fleet)) > 0.5:
                     self.robots_moved = True
-                self.latest_robots = xy
 
     def on_params(self, msg):
         """Keep the learned parameters (agent × param) at the latest herd tick."""

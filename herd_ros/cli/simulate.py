@@ -7,6 +7,7 @@ from herd_ros.cli.common import progress
 from herd_ros.data_sources import load_runs
 from herd_ros.errors import HerdInputError
 from herd_ros.herd_dynamics import HerdDynamics
+from herd_ros.nan_stats import empty_slices_quiet
 from herd_ros.simulation.herd_simulator import first_pairs
 from herd_ros.simulation.statistics import herd_statistics
 from herd_ros.trajectory import HerdTrajectory, write_trajectory_csv
@@ -76,7 +77,7 @@ def compare_with_data(traj, data, dt: float, source) -> str:
     seen, span = observed_like(traj, data, traj.times[0] + dt * np.arange(len(data)))
     if len(span) < 4:
         return f'(too few steps of {source} to compare with)'
-    with np.errstate(invalid='ignore', divide='ignore'):
+    with empty_slices_quiet():
         d, r = shape_and_pace(span, dt), shape_and_pace(seen, dt)
         cells = []
         for k in STATISTICS:

@@ -29,9 +29,9 @@ Plain numpy; no ROS.
 """
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
+
+from herd_ros.nan_stats import empty_slices_quiet
 
 #: window lengths (s) reported, those with at least :data:`MIN_BLOCKS` blocks in the data
 WINDOWS_S = (60.0, 600.0, 3600.0)
@@ -49,8 +49,7 @@ def shared_correlation(residuals: np.ndarray, window: int) -> tuple[float, int]:
     B = len(w) // W
     if B < 2:
         return float('nan'), B
-    with warnings.catch_warnings(), np.errstate(invalid='ignore', divide='ignore'):
-        warnings.simplefilter('ignore', RuntimeWarning)     # an animal with no residual
+    with empty_slices_quiet():                      # an animal with no residual: NaN
         sd = np.nanstd(w, axis=0)                                       # (N, 2)
         z = (w - np.nanmean(w, axis=0)) / np.where(sd > 0, sd, np.nan)
     blocks = z[:B * W].reshape(B, W, w.shape[1], 2)
