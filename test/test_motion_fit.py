@@ -128,3 +128,58 @@ def test_the_compiled_likelihood_is_the_vectorised_one():
         np.testing.assert_allclose(innovation_loglik(t, z, rr, n, tv, D, sm, walk),
                                    innovation_loglik_numpy(t, z, rr, n, tv, D, sm, walk),
                                    rtol=1e-10)
+
+
+def _bounded_velocity_collars(n_collars, seed):
+    """Collars seen every 1-1.2 s with 3 m noise, their velocity a bounded random walk
+    (the ingest benchmark's herd)."""
+    rng = np.random.default_rng(seed)
+    tracks = []
+    for _ in range(n_collars):
+        t = np.cumsum(rng.uniform(1.0, 1.2, 200))
+        v = np.cumsum(rng.normal(0.0, 0.02, (200, 2)), axis=0).clip(-1.0, 1.0)
+        z = np.cumsum(v, axis=0) + rng.normal(0.0, 3.0, (200, 2))
+        tracks.append((t, z, np.full(200, np.nan)))
+    return tracks
+
+
+WALK = (1.0, 60.0, 0.05, 25.0)
+
+
+def test_the_fit_finds_the_best_of_a_dense_grid():
+    """Each model's optimum (``optima``) is at least as likely as the best point of a dense
+    grid over the whole search box (an exhaustive search, independent of the optimiser's
+    starts); the IOU's likelihood has more than one basin on these collars."""
+    from herd_ros.ingest.motion_fit import TAU_MAX, _pack, innovation_loglik
+    tracks = _bounded_velocity_collars(6, seed=2)
+    fits = fit_motion(tracks, walk=WALK)
+    t, z, r, n = _pack(tracks, 200)
+    tv_rw = 0.1 * np.percentile(np.diff(t, axis=1), 10, axis=1)
+    for model in (0, 1):
+        x = np.array([f.optima[model] for f in fits])             # log10 τ, σ_a, σ_m²
+        tv = 10.0 ** x[:, :1]
+        at_fit = innovation_loglik(t, z, r, n, tv, (10.0 ** x[:, 1:2] * tv) ** 2,
+                                   10.0 ** x[:, 2:3], WALK)[:, 0]
+        if model == 0:
+            lt = np.log10(tv_rw)[:, None, None, None] * np.ones((1, 1, 40, 16))
+        else:
+            lt = np.linspace(np.log10(3.0 * tv_rw), np.full(6, np.log10(TAU_MAX)), 30).T
+            lt = lt[:, :, None, None] * np.ones((1, 1, 40, 16))
+        la = np.linspace(-6.0, 1.0, 40)[None, None, :, None] + 0.0 * lt
+        ls = np.linspace(np.log10(0.25), 2.5, 16)[None, None, None, :] + 0.0 * lt
+        lt, la, ls = (q.reshape(6, -1) for q in (lt, la, ls))
+        tvg = 10.0 ** lt
+        grid = innovation_loglik(t, z, r, n, tvg, (10.0 ** la * tvg) ** 2, 10.0 ** ls, WALK)
+        assert (at_fit >= grid.max(axis=1) - 0.1).all(), (model, at_fit, grid.max(axis=1))
+
+
+def test_a_refit_on_the_same_fixes_is_no_worse_than_the_first_fit():
+    """Maximum likelihood on the same data started from its own optimum: the chosen
+    model's AIC is no worse (to the search's tolerance), nor a kept model's ℓ."""
+    tracks = _bounded_velocity_collars(40, seed=1)
+    first = fit_motion(tracks, walk=WALK)
+    again = fit_motion(tracks, walk=WALK, start=first)
+    for f, g in zip(first, again):
+        assert g.aic <= f.aic + 0.5, (f, g)
+        if g.model == f.model:
+            assert g.loglik >= f.loglik - 0.5, (f, g)

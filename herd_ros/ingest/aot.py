@@ -79,7 +79,7 @@ EXPORTS = {
     'motion_nelder_mead': ('void', (('f8', 2, False), ('f8', 3, False), ('f8', 2, False),
                                     ('i8', 1, False), ('f8', 2, False), ('f8', 2, False),
                                     ('f8', 2, False), ('f8', 2, False), 'f8', 'f8', 'f8',
-                                    'f8', 'f8', 'i8', 'f8', ('f8', 2, True),
+                                    'f8', 'f8', ('i8', 1, False), 'f8', ('f8', 2, True),
                                     ('f8', 1, True))),
     'snapshot': ('void', ('f8', ('i8', 1, False), ('f8', 2, False), ('f8', 3, False),
                           ('f8', 4, False), ('f8', 3, False), 'f8', ('f8', 2, True),

@@ -561,13 +561,32 @@ def snapshot(tick, count, rt, rx, rP, rm, stale_after, x, P, stale, init):
 
 
 @_jit
-def _loglik_one(t, z, r, i, m, tv, D, sm2, walk_accel, walk_tau, walk_prob, walk_r2,
-                huber):
-    """ℓ of collar i's first ``m`` fixes at one parameter point (see motion_loglik)."""
-    two_pi = 2.0 * math.pi
-    use_walk = walk_accel > 0.0
+def _walk_steps(t, i, m, walk_accel, walk_tau, out):
+    """The walk component's (f_pv, f_vv, q_pp, q_pv, q_vv) at each of collar i's first
+    ``m`` intervals, into ``out[k]`` for the interval ending at fix k: they depend on the
+    intervals alone, so a search computes them once per collar."""
+    if walk_accel <= 0.0:
+        return
+    for k in range(1, m):
+        f, gg, qpp, qpv, qvv = _motion(t[i, k] - t[i, k - 1], walk_accel, walk_tau)
+        out[k, 0] = f
+        out[k, 1] = gg
+        out[k, 2] = qpp
+        out[k, 3] = qpv
+        out[k, 4] = qvv
+
+
+@_jit
+def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber):
+    """ℓ of collar i's first ``m`` fixes at one parameter point (see motion_loglik);
+    ``walk`` the walk component's steps (:func:`_walk_steps`), or an empty array for none.
+    Per step one log per component (of the product of the axes' variances) and, for the
+    mixture, one exp and one log1p (ℓ_k = max + log1p(e^{−|Δ|}), the weights from the same
+    exponential)."""
+    use_walk = walk.shape[0] > 0
     lg0 = math.log1p(-walk_prob) if use_walk else 0.0
     lw0 = math.log(walk_prob) if use_walk else 0.0
+    log_two_pi = math.log(2.0 * math.pi)
     p = np.empty(2)
     v = np.empty(2)
     a = np.empty(2)
@@ -591,27 +610,35 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk_accel, walk_tau, walk_prob, walk
         for j in range(ncomp):
             if j == 0:
                 f, gg, qpp, qpv, qvv = _motion(dt, accel, tv)
+                extra = 0.0
             else:
-                f, gg, qpp, qpv, qvv = _motion(dt, walk_accel, walk_tau)
+                f = walk[k, 0]
+                gg = walk[k, 1]
+                qpp = walk[k, 2]
+                qpv = walk[k, 3]
+                qvv = walk[k, 4]
+                extra = walk_r2
             nis = 0.0
-            logdet = 0.0
+            det = 1.0
             for ax in range(2):
                 ap = a[ax] + 2.0 * f * b[ax] + f * f * c[ax] + qpp
                 bp = gg * (b[ax] + f * c[ax]) + qpv
                 cp = gg * gg * c[ax] + qvv
-                S = ap + rk + (walk_r2 if j == 1 else 0.0)
+                S = ap + rk + extra
+                kp = ap / S
+                kv = bp / S
                 pp = p[ax] + f * v[ax]
                 y = z[i, k, ax] - pp
                 nis += y * y / S
-                logdet += math.log(S)
-                comp[j, 0, ax] = pp + ap / S * y
-                comp[j, 1, ax] = gg * v[ax] + bp / S * y
-                comp[j, 2, ax] = ap - ap * ap / S
-                comp[j, 3, ax] = bp - ap * bp / S
-                comp[j, 4, ax] = cp - bp * bp / S
+                det *= S
+                comp[j, 0, ax] = pp + kp * y
+                comp[j, 1, ax] = gg * v[ax] + kv * y
+                comp[j, 2, ax] = ap - kp * ap
+                comp[j, 3, ax] = bp - kp * bp
+                comp[j, 4, ax] = cp - kv * bp
             if not use_walk and nis > huber:
                 nis = 2.0 * math.sqrt(huber * nis) - huber
-            lc[j] = (lg0 if j == 0 else lw0) - math.log(two_pi) - 0.5 * logdet - 0.5 * nis
+            lc[j] = (lg0 if j == 0 else lw0) - log_two_pi - 0.5 * math.log(det) - 0.5 * nis
         if not use_walk:
             ll += lc[0]
             for ax in range(2):
@@ -621,10 +648,15 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk_accel, walk_tau, walk_prob, walk
                 b[ax] = comp[0, 3, ax]
                 c[ax] = comp[0, 4, ax]
             continue
-        hi = max(lc[0], lc[1])
-        lk = hi + math.log(math.exp(lc[0] - hi) + math.exp(lc[1] - hi))
+        diff = lc[1] - lc[0]
+        e = math.exp(-abs(diff))
+        if diff > 0.0:
+            lk = lc[1] + math.log1p(e)
+            w1 = 1.0 / (1.0 + e)
+        else:
+            lk = lc[0] + math.log1p(e)
+            w1 = e / (1.0 + e)
         ll += lk
-        w1 = math.exp(lc[1] - lk)
         w0 = 1.0 - w1
         for ax in range(2):
             p0 = comp[0, 0, ax]
@@ -651,16 +683,16 @@ def motion_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk_accel,
     collar i's log-likelihood at parameter point g (``walk_accel`` ≤ 0: no walk
     component; ``huber``: the χ²₂ level beyond which an innovation costs linearly, used
     without a walk component)."""
+    walk = np.empty((t.shape[1] if walk_accel > 0.0 else 0, 5))
     for i in range(t.shape[0]):
+        _walk_steps(t, i, n[i], walk_accel, walk_tau, walk)
         for g in range(velocity_tau.shape[1]):
             out[i, g] = _loglik_one(t, z, r, i, n[i], velocity_tau[i, g], diffusion[i, g],
-                                    position_var[i, g], walk_accel, walk_tau, walk_prob,
-                                    walk_r2, huber)
+                                    position_var[i, g], walk, walk_prob, walk_r2, huber)
 
 
 @_jit
-def _nm_value(t, z, r, i, m, x, lo, hi, walk_accel, walk_tau, walk_prob, walk_r2,
-              huber):
+def _nm_value(t, z, r, i, m, x, lo, hi, walk, walk_prob, walk_r2, huber):
     """−ℓ at log10 parameters x = (τ_v, σ_a, σ_m²), clipped to [lo, hi] (σ_a the
     acceleration std: well defined from the random walk to the constant velocity; the
     diffusion is D = σ_a² τ_v²)."""
@@ -669,7 +701,7 @@ def _nm_value(t, z, r, i, m, x, lo, hi, walk_accel, walk_tau, walk_prob, walk_r2
     tv = 10.0 ** x[0]
     sa = 10.0 ** x[1]
     return -_loglik_one(t, z, r, i, m, tv, sa * sa * tv * tv, 10.0 ** x[2],
-                        walk_accel, walk_tau, walk_prob, walk_r2, huber)
+                        walk, walk_prob, walk_r2, huber)
 
 
 @_jit
@@ -679,7 +711,8 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
     """Maximise each collar's ℓ over log10 (τ_v, σ_a, σ_m²) by Nelder & Mead (1965) from
     ``x0`` (N, 3) with initial steps ``step`` (N, 3) (a coordinate with step 0 is held),
     within [lo, hi] (N, 3); stops when the simplex's values agree within ``ftol`` or
-    after ``max_evals``. Writes the optimum to ``out_x`` (N, 3), ℓ to ``out_ll`` (N,)."""
+    after ``max_evals[i]`` evaluations. Writes the optimum to ``out_x`` (N, 3), ℓ to
+    ``out_ll`` (N,)."""
     S = np.empty((4, 3))
     F = np.empty(4)
     xc = np.empty(3)
@@ -687,8 +720,10 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
     xe = np.empty(3)
     xk = np.empty(3)
     dims = np.empty(3, np.int64)
+    walk = np.empty((t.shape[1] if walk_accel > 0.0 else 0, 5))
     for i in range(t.shape[0]):
         m = n[i]
+        _walk_steps(t, i, m, walk_accel, walk_tau, walk)
         nfree = 0
         for d in range(3):
             if step[i, d] != 0.0:
@@ -696,18 +731,16 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
                 nfree += 1
         if nfree == 0:
             out_x[i, :] = x0[i]
-            out_ll[i] = -_nm_value(t, z, r, i, m, out_x[i], lo, hi, walk_accel, walk_tau,
-                                   walk_prob, walk_r2, huber)
+            out_ll[i] = -_nm_value(t, z, r, i, m, out_x[i], lo, hi, walk, walk_prob, walk_r2, huber)
             continue
         for j in range(nfree + 1):
             for d in range(3):
                 S[j, d] = x0[i, d]
             if j > 0:
                 S[j, dims[j - 1]] += step[i, dims[j - 1]]
-            F[j] = _nm_value(t, z, r, i, m, S[j], lo, hi, walk_accel, walk_tau, walk_prob,
-                             walk_r2, huber)
+            F[j] = _nm_value(t, z, r, i, m, S[j], lo, hi, walk, walk_prob, walk_r2, huber)
         evals = nfree + 1
-        while evals < max_evals:
+        while evals < max_evals[i]:
             # order: best first
             for j in range(1, nfree + 1):
                 k = j
@@ -729,14 +762,12 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
                 xc[d] = s_ / nfree
             for d in range(3):
                 xr[d] = xc[d] + (xc[d] - S[nfree, d])
-            fr = _nm_value(t, z, r, i, m, xr, lo, hi, walk_accel, walk_tau, walk_prob,
-                           walk_r2, huber)
+            fr = _nm_value(t, z, r, i, m, xr, lo, hi, walk, walk_prob, walk_r2, huber)
             evals += 1
             if fr < F[0]:
                 for d in range(3):
                     xe[d] = xc[d] + 2.0 * (xc[d] - S[nfree, d])
-                fe = _nm_value(t, z, r, i, m, xe, lo, hi, walk_accel, walk_tau, walk_prob,
-                               walk_r2, huber)
+                fe = _nm_value(t, z, r, i, m, xe, lo, hi, walk, walk_prob, walk_r2, huber)
                 evals += 1
                 if fe < fr:
                     S[nfree, :] = xe
@@ -753,8 +784,7 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
             for d in range(3):
                 base = xr[d] if outside else S[nfree, d]
                 xk[d] = xc[d] + 0.5 * (base - xc[d])
-            fk = _nm_value(t, z, r, i, m, xk, lo, hi, walk_accel, walk_tau, walk_prob,
-                           walk_r2, huber)
+            fk = _nm_value(t, z, r, i, m, xk, lo, hi, walk, walk_prob, walk_r2, huber)
             evals += 1
             if fk < min(fr, F[nfree]):
                 S[nfree, :] = xk
@@ -763,8 +793,7 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
             for j in range(1, nfree + 1):          # shrink towards the best
                 for d in range(3):
                     S[j, d] = S[0, d] + 0.5 * (S[j, d] - S[0, d])
-                F[j] = _nm_value(t, z, r, i, m, S[j], lo, hi, walk_accel, walk_tau,
-                                 walk_prob, walk_r2, huber)
+                F[j] = _nm_value(t, z, r, i, m, S[j], lo, hi, walk, walk_prob, walk_r2, huber)
                 evals += 1
         best = 0
         for j in range(1, nfree + 1):
