@@ -416,13 +416,12 @@ def _nelder_mead_fits(t, z, r, n, tv_rw, sm_free, floor2, walk, prev, scout: int
     D = σ_a² τ_v² runs off to infinity at the constant-velocity end; σ_a does not). A
     collar with a previous fit (``prev``, a refit on its running window) starts each
     model's search from that model's previous optimum (:attr:`MotionFit.optima`), with
-    smaller steps and a shorter budget (:data:`WARM_EVALS`). The IOU is also searched
-    from the random walk just fitted, with τ_v the median interval, and the better of its
-    two optima kept: the IOU's likelihood has a basin there that the grid misses (on 200
-    collars seen at 1 s, the ingest benchmark's herd, the grid's start alone left 9 of
-    them more than one log-likelihood unit short and AIC picked the IOU for 51 where it
-    is better for 95). Returns per model (log τ_v, log D, log σ_m², ℓ, the optima
-    (N, 3))."""
+    smaller steps and a shorter budget (:data:`WARM_EVALS`). At a first fit the IOU is
+    also searched from the random walk just fitted, with τ_v the median interval, and the
+    better of its two optima kept: the IOU's likelihood has a basin there that the grid
+    misses (on 200 collars seen at 1 s, the ingest benchmark's herd, the grid's start
+    alone picked the IOU for 51 where it is the better model for 95). Returns per model
+    (log τ_v, log D, log σ_m², ℓ, the optima (N, 3))."""
     from herd_ros.ingest import collar_bank
     N = len(n)
     wa, wt, pw, wr2 = _walk(walk)
@@ -454,15 +453,18 @@ def _nelder_mead_fits(t, z, r, n, tv_rw, sm_free, floor2, walk, prev, scout: int
         out[cold] = pts[np.arange(len(cold)), k]
         return out, has
 
-    def polish(x0, lo, hi, step, evals):
-        x = np.empty((N, 3))
-        ll = np.empty(N)
+    def polish(x0, lo, hi, step, evals, rows=slice(None)):
+        """Nelder-Mead of the collars ``rows`` from x0 (all (N, ·), evals (N,))."""
+        k = len(n[rows])
+        x = np.empty((k, 3))
+        ll = np.empty(k)
         collar_bank.KERNELS.motion_nelder_mead(
-            t, z, r, np.ascontiguousarray(n, dtype=np.int64), np.ascontiguousarray(x0),
-            np.ascontiguousarray(lo), np.ascontiguousarray(hi),
-            np.ascontiguousarray(step, dtype=float),
+            np.ascontiguousarray(t[rows]), np.ascontiguousarray(z[rows]),
+            np.ascontiguousarray(r[rows]), np.ascontiguousarray(n[rows], dtype=np.int64),
+            np.ascontiguousarray(x0[rows]), np.ascontiguousarray(lo[rows]),
+            np.ascontiguousarray(hi[rows]), np.ascontiguousarray(step[rows], dtype=float),
             float(wa), float(wt), float(pw), float(wr2), HUBER_NIS,
-            np.ascontiguousarray(evals, dtype=np.int64), 0.05, x, ll)
+            np.ascontiguousarray(evals[rows], dtype=np.int64), 0.05, x, ll)
         return x, ll
 
     def steps(warm, fixed_tv):
@@ -505,16 +507,21 @@ def _nelder_mead_fits(t, z, r, n, tv_rw, sm_free, floor2, walk, prev, scout: int
     hi_i = np.column_stack([np.full(N, np.log10(TAU_MAX)), np.full(N, 2.0), sm_hi])
     xi, lli = polish(x0, lo_i, hi_i, steps(warm, False),
                      np.where(warm, WARM_EVALS[1], COLD_EVALS[1]))
-    # and from the random walk just fitted (τ_v the median interval, the same long-run
-    # diffusion and fix std): the IOU's likelihood has a basin there the grid misses
-    med = np.array([np.median(np.diff(t[j, :n[j]])) for j in range(N)])
-    tau = np.clip(med, 3.0 * tv_rw, TAU_MAX)
-    x1 = np.column_stack([np.log10(tau), xr[:, 1] + np.log10(tv_rw / tau), xr[:, 2]])
-    xi2, lli2 = polish(x1, lo_i, hi_i, steps(np.ones(N, bool), False),
-                       np.full(N, WARM_EVALS[1]))
-    better = lli2 > lli
-    xi[better] = xi2[better]
-    lli[better] = lli2[better]
+    # a first fit also from the random walk just fitted (τ_v the median interval, the
+    # same long-run diffusion and fix std): the IOU's likelihood has a basin there the
+    # grid misses; a refit follows the better one from its previous optimum
+    c = np.flatnonzero(~warm)
+    if len(c):
+        med = np.array([np.median(np.diff(t[j, :n[j]])) for j in c])
+        tau = np.clip(med, 3.0 * tv_rw[c], TAU_MAX)
+        x1 = x0.copy()
+        x1[c] = np.column_stack([np.log10(tau), xr[c, 1] + np.log10(tv_rw[c] / tau),
+                                 xr[c, 2]])
+        xi2, lli2 = polish(x1, lo_i, hi_i, steps(np.ones(N, bool), False),
+                           np.full(N, WARM_EVALS[1]), rows=c)
+        better = lli2 > lli[c]
+        xi[c[better]] = xi2[better]
+        lli[c[better]] = lli2[better]
 
     def as_d(x):
         return 2.0 * (x[:, 1] + x[:, 0])          # log10 D = 2 (log σ_a + log τ_v)
