@@ -215,6 +215,7 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
         pass
     finally:
         estimator = next((n for n in nodes if isinstance(n, Estimator)), None)
+        controller = next((n for n in nodes if isinstance(n, Controller)), None)
         for n in nodes:
             hook = getattr(n, 'on_shutdown', None)
             if hook is not None:
@@ -265,6 +266,12 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
              'herd_snapshots': int(len(times)), 'model_updates': int(len(thetas)),
              'robot_samples': int(active.sum()), 'model_file': str(model_path),
              'prediction_skill': skill, 'estimator_skill': live_skill}
+    pace = getattr(getattr(controller, 'policy', None), 'pace', None)
+    if pace is not None:
+        # each robot's factor on its noise, matched to its animal's speed (pace_match)
+        facts['pace_factors'] = {r: float(f) for r, f in zip(robots, pace.factors)}
+        facts['pace_factor_history'] = [{'time': float(t), 'factors': [float(v) for v in f]}
+                                        for t, f in pace.history]
     profile_size = int(params['estimator']['ros__parameters'].get('profile_size', 6))
     return write_demo_report(out, cows, robots_traj, agents, param_times, thetas, fence, facts,
                              law=setup.law, profile_size=profile_size)

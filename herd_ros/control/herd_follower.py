@@ -122,6 +122,8 @@ class HerdFollower:
         noise_source: draws w, N(0, Q_A(k)) or A(k)'s noise regimes
             (:func:`~herd_ros.model.noise_regimes.noise_for`).
         noise: whether w is drawn.
+        noise_gain (R,): a factor on each robot's noise std on top of the model's (the
+            live pace match, :mod:`herd_ros.control.pace_match`); 1 by default.
     """
 
     def __init__(self, model: HerdModel, assignment: list[str], robots: list[str] | None = None,
@@ -134,6 +136,7 @@ class HerdFollower:
         self.theta2 = self.model.theta2
         self.noise = bool(noise)
         self.noise_source = noise_for(self.model, seed)
+        self.noise_gain = np.ones(len(self.robots))
 
     def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Σ_{j active, j≠k} f_kj(p_k, p_j) + g_k(p_k) for every robot: (R, 2) -> (R, 2).
@@ -188,7 +191,7 @@ class HerdFollower:
             change = beta * (damped + self.drift(p, active)
                              + self.alignment(p, u if plain else mean, active))
             if self.noise:
-                change += self.noise_source.draw(beta)
+                change += self.noise_gain[:, None] * self.noise_source.draw(beta)
             p = p + beta * self.dt * u
             u = u + change
             mean = u if plain else np.where((kappa == 1.0)[:, None], u,
@@ -339,6 +342,7 @@ class SharedLawFollower(HerdFollower):
         self.damping = self.model.damping
         self.noise = bool(noise)
         self.noise_source = noise_for(self.model, seed)
+        self.noise_gain = np.ones(len(self.robots))
 
     def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Σ_j F(d) e + g for every robot; inactive robots (NaN, stale) exert nothing."""

@@ -63,6 +63,7 @@ class Controller(Node):
         self.yaw = np.full(n, np.nan)
         self.velocity = np.zeros((n, 2))
         self.odom_time = np.full(n, np.nan)
+        self.odom_stamp = np.full(n, np.nan)    # the odometry's own stamps (s)
         self.last_command = np.zeros((n, 2))
         self.counts = {key: np.zeros(n, dtype=np.int64)
                        for key in ('speed_limited', 'obstacle_limited', 'fence_limited',
@@ -130,6 +131,7 @@ class Controller(Node):
         self.velocity[k] = kin.body_to_world(np.array([twist.linear.x, twist.linear.y]),
                                              self.yaw[k])
         self.odom_time[k] = self.now_s()
+        self.odom_stamp[k] = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
     def tick(self):
         """One control period: the mode's velocities through the safety layer to Twists."""

@@ -7,12 +7,14 @@ parameters, subscriptions and the checks of each model adopted
 from __future__ import annotations
 
 import numpy as np
+from geometry_msgs.msg import PoseArray
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, String
 
 from herd_ros.control.damping import damping_check
 from herd_ros.control.fleet_observation import FleetObservation
 from herd_ros.control.herd_follower import HerdClockHold, HerdFollower, follower_for
+from herd_ros.control.pace_match import PaceMatch
 from herd_ros.errors import HerdInputError
 from herd_ros.estimation.online_regimes import unpack_regimes
 from herd_ros.herd_dynamics import HerdDynamics
@@ -46,6 +48,10 @@ class HerdModelPolicy:
         self.min_updates = int(p['model_min_updates'])
         self.received = 0
         self.refused_since_adopted = 0
+        # each robot's noise matched to its animal's speed on /herd/poses (live models:
+        # the estimator's structure says which pose is which animal)
+        self.match_pace = bool(p['match_pace']) and self.noise and self.source == 'topic'
+        self.pace: PaceMatch | None = None
         if self.source == 'file':
             model = self._model_from_parameters()
             problem, warning = damping_check(model.damping, list(model.agents))
@@ -73,6 +79,9 @@ class HerdModelPolicy:
                                      lambda msg: self.on_range(msg, 'home'), 10)
             node.create_subscription(Float64MultiArray, '/herd/model/place',
                                      lambda msg: self.on_range(msg, 'place'), 10)
+            if self.match_pace:
+                node.create_subscription(PoseArray, '/herd/poses', self.on_herd_poses,
+                                         QoSProfile(depth=100))
         else:
             raise ParameterError(f'model_source must be file or topic, got {self.source!r}')
 
@@ -144,6 +153,8 @@ class HerdModelPolicy:
                                      noise=self.noise, seed=self.rng)
         # ... and the regime chains run on: a rest or a move outlives the model update
         carry_regime_state(previous, self.follower.noise_source)
+        if self.pace is not None and len(self.pace.factors) == len(self.follower.robots):
+            self.follower.noise_gain = self.pace.factors.copy()
         self.updates += 1
         regimes = (model.meta or {}).get('noise_regimes')
         noise = ('' if not self.noise else
@@ -257,6 +268,29 @@ class HerdModelPolicy:
             self.node.get_logger().warn(str(exc), throttle_duration_sec=10.0)
             return
         self.noise_regimes = (cov, trans) if cov.shape[1] > 1 else None
+
+    def on_herd_poses(self, msg: PoseArray):
+        """A herd tick: each robot against its animal for the pace match
+        (:class:`~herd_ros.control.pace_match.PaceMatch`; the robots' positions are their
+        latest odometry, timed by its own stamps: at a fast replay it arrives in bursts)."""
+        st, follower = self.structure, self.follower
+        if st is None or follower is None or len(msg.poses) != len(st.agents):
+            return
+        animals = np.array([(q.position.x, q.position.y) for q in msg.poses], dtype=float)
+        try:
+            index = [list(st.agents).index(a) for a in self._assignment(list(st.agents))]
+        except ParameterError:
+            return
+        if self.pace is None or self.pace.lag != follower.dt or self.pace.n != len(index):
+            self.pace = PaceMatch(len(index), follower.dt)
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        node = self.node
+        if self.pace.observe(t, animals[index], node.odom_stamp, node.positions):
+            follower.noise_gain = self.pace.factors.copy()
+            f = self.pace.factors[node.owned]
+            node.get_logger().info(f'pace match: noise factors {f.min():.2f}-{f.max():.2f} '
+                                   f'(each robot\'s speed against its animal\'s)',
+                                   throttle_duration_sec=30.0)
 
     # -- the policy -----------------------------------------------------------------------
     def command(self, state: FleetObservation) -> np.ndarray:

@@ -174,6 +174,16 @@ HERD_MODEL = {
         0,
         'seed of the noise generator',
         range=(0, 2147483647)),
+    'match_pace': Param(
+        True,
+        "topic, with noise: scale each robot's noise so its speed matches its animal's",
+        doc=('\n'
+             "With noise and model_source topic: scale each robot's noise so that "
+             'its speed at the\n'
+             "model's step matches its animal's on /herd/poses over the last 240 "
+             'ticks (the law\'s\n'
+             "noise, estimated from the track, carries the collar's error; "
+             'herd_ros/control/pace_match.py).')),
     'model_source': Param(
         'file',
         'model.* parameters of a model file, or live from /herd/model/params',
