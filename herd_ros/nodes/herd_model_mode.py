@@ -1,9 +1,10 @@
 """Mode ``herd_model`` of the controller: each robot follows its assigned animal's learned
 law (:mod:`herd_ros.control.herd_follower`), the model from a model file's ``model.*``
 parameters or live from the estimator's ``/herd/model/params`` (with its noise Q_i and,
-when fitted, its stop-and-go noise regimes, ``/herd/model/noise_regimes``). The shell of the mode:
-parameters, subscriptions and the checks of each model adopted
-(:mod:`herd_ros.control.damping`)."""
+when fitted, its stop-and-go noise regimes, ``/herd/model/noise_regimes``; with
+``match_pace`` each robot's noise scaled to its animal's speed on ``/herd/poses``,
+:mod:`herd_ros.control.pace_match`). The shell of the mode: parameters, subscriptions and
+the checks of each model adopted (:mod:`herd_ros.control.damping`)."""
 from __future__ import annotations
 
 import numpy as np
