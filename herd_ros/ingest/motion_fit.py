@@ -56,7 +56,7 @@ MODELS = ('rw', 'iou', 'prior')
 TAU_MAX = 2 * 86400.0
 #: Nelder-Mead's budget (likelihood evaluations) for (random walk, IOU), from the grid
 COLD_EVALS = (80, 120)
-#: ... and from a collar's previous fit when that is the better start (a refit)
+#: ... and from the same model's previous optimum (a refit, :attr:`MotionFit.optima`)
 WARM_EVALS = (40, 80)
 
 
