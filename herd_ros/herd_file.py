@@ -200,6 +200,24 @@ def read_herd_file(path) -> tuple[HerdSetup, Path | None]:
     return setup, bag
 
 
+#: the robots follow the live law once it has this many model steps per parameter (an
+#: animal's least squares with fewer overfits: on a 72-hour duty-cycled cattle analog, at
+#: one to two steps per parameter the robots ran 10 to 57 times their animals' speed)
+MIN_STEPS_PER_PARAMETER = 3
+
+
+def live_law_size(setup) -> int:
+    """Parameters per animal of the estimator's live law for ``setup``
+    (:attr:`herd_ros.model.model_structure.ModelStructure.n_params` with the estimator's
+    default distance profile and no alignment): 1 + 2(N − 1) + 2K pairwise, 1 + B + 2K
+    shared."""
+    from herd_ros.params.estimator import PARAMS
+    k = int(setup.field_grid[0]) * int(setup.field_grid[1])
+    middle = (2 * (len(setup.agents) - 1) if setup.law == 'pairwise'
+              else int(PARAMS['profile_size'].default))
+    return 1 + middle + 2 * k
+
+
 def node_parameters(setup: HerdSetup, bag, out_dir=None, rate=None,
                     composed: bool = False) -> dict:
     """Every node's parameters for ``setup``: {node name: {'ros__parameters': {...}}}.
@@ -250,8 +268,10 @@ def node_parameters(setup: HerdSetup, bag, out_dir=None, rate=None,
             **common, 'robots': list(setup.robots), 'assignment': list(setup.agents),
             'mode': 'herd_model',
             # the estimator's first five minutes of data (at least 30 steps) are too few
-            # for a usable law
-            'model_source': 'topic', 'model_min_updates': int(max(30, np.ceil(300.0 / dt))),
+            # for a usable law, and so are fewer than three steps per parameter of it
+            'model_source': 'topic',
+            'model_min_updates': int(max(30, np.ceil(300.0 / dt),
+                                         MIN_STEPS_PER_PARAMETER * live_law_size(setup))),
             'noise': True, 'seed': 0,
             # four ticks per model step: the law is held over each herd-clock interval and
             # stepped at its ticks (HerdClockHold), so the robots run the discrete law exactly

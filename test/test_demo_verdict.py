@@ -73,3 +73,21 @@ def test_robots_are_matched_to_herd_ticks_by_their_stamps():
     assert np.isnan(at[0]) and np.isnan(at[-1])
     assert at[1:-1].tolist() == [0.0, 0.0, 1.0, 2.0, 3.0, 3.0]
     assert np.isnan(robots_at([1.0, 2.0], [], np.zeros((0, 1, 2)))).all()
+    # between snapshots (an animal's fix stamps), linearly; past the last one, held
+    at = robots_at([5.0, 12.5, 25.0, 45.0], stamps, xy, interpolate=True)[:, 0, 0]
+    assert at.tolist() == [0.5, 1.25, 2.5, 3.0]
+
+
+def test_robots_are_seen_at_their_animals_fixes():
+    """Robot 0's animal reports at 10 s and 35 s: at tick 0 the robot is nowhere (no fix
+    yet), at ticks 10, 20 and 30 where it was at 10 s, at tick 40 where it was at 35 s;
+    robot 1's animal never reports."""
+    from herd_ros.report.demo_report import seen_at_fixes
+    times = np.array([0.0, 10.0, 20.0, 30.0, 40.0])
+    held = seen_at_fixes(times, [np.array([10.0, 35.0]), np.array([])],
+                         [np.array([[1.0, 2.0], [5.0, 6.0]]), np.zeros((0, 2))])
+    assert held.shape == (5, 2, 2)
+    assert np.isnan(held[0, 0]).all()
+    np.testing.assert_array_equal(held[1:4, 0], [[1.0, 2.0]] * 3)
+    np.testing.assert_array_equal(held[4, 0], [5.0, 6.0])
+    assert np.isnan(held[:, 1]).all()

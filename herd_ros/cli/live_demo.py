@@ -24,14 +24,16 @@ from pathlib import Path
 
 import numpy as np
 
-def robots_at(times, fleet_times, fleet_xy) -> np.ndarray:
+def robots_at(times, fleet_times, fleet_xy, interpolate: bool = False) -> np.ndarray:
     """The robots' positions (T, R, 2) at herd ticks ``times``, from fleet snapshots
     ``fleet_xy`` (F, R, 2) stamped ``fleet_times`` (F,): the last fleet snapshot
     stamped at or before each tick (NaN before the first, and more than two fleet steps after
     a snapshot: the fleet had not got there). By stamp, not by arrival: with the
     bag played hundreds of times faster than real time, the fleet's poses reach the recorder
     in bursts, and the latest one received at a herd tick can be minutes of herd time off
-    (robots seemed to jump 100 m in 30 s)."""
+    (robots seemed to jump 100 m in 30 s). ``interpolate``: linearly between that snapshot
+    and the next where the next is within two fleet steps (times between the snapshots:
+    an animal's fix stamps)."""
     times = np.asarray(times, dtype=float)
     ft = np.asarray(fleet_times, dtype=float)
     xy = np.asarray(fleet_xy, dtype=float)              # (F, R, 2)
@@ -45,14 +47,21 @@ def robots_at(times, fleet_times, fleet_xy) -> np.ndarray:
     reach = 2.0 * float(np.median(steps)) if len(steps) else np.inf
     ok = (k >= 0) & (times - ft[np.maximum(k, 0)] <= reach + 1e-9)
     out[ok] = xy[k[ok]]
+    if interpolate:
+        nxt = np.minimum(k + 1, len(ft) - 1)
+        between = ok & (nxt > k) & (ft[nxt] - ft[np.maximum(k, 0)] <= reach + 1e-9)
+        kb, nb = k[between], nxt[between]
+        w = ((times[between] - ft[kb]) / (ft[nb] - ft[kb]))[:, None, None]
+        out[between] = (1.0 - w) * xy[kb] + w * xy[nb]
     return out
 
 
 class DemoRecorder:
     """Records herd snapshots, the robots' stamped poses and parameters over time."""
 
-    def __init__(self, node, n_robots: int):
+    def __init__(self, node, n_robots: int, agents=()):
         from geometry_msgs.msg import PoseArray
+        from nav_msgs.msg import Odometry
         from std_msgs.msg import Float64MultiArray
         self.node = node
         self.lock = threading.Lock()
@@ -66,6 +75,12 @@ class DemoRecorder:
         node.create_subscription(PoseArray, '/fleet/poses', self.on_fleet, 1000)
         node.create_subscription(Float64MultiArray, '/herd/model/params', self.on_params, 100)
         node.create_subscription(PoseArray, '/herd/model/prediction', self.on_prediction, 100)
+        # each animal's accepted fixes (gps_ingest's odometry, stamped with the fix): when
+        # its track was informed
+        self.fix_times = {a: [] for a in agents}
+        for a in agents:
+            node.create_subscription(Odometry, f'/herd/{a}/odom',
+                                     lambda msg, a=a: self.on_fix(a, msg), 1000)
         self.first_fleet = None
 
     @staticmethod
@@ -79,6 +94,11 @@ class DemoRecorder:
         with self.lock:
             self.herd_times.append(t)
             self.herd.append(self._xy(msg))
+
+    def on_fix(self, agent: str, msg):
+        """Note the stamp of an accepted fix of ``agent``."""
+        with self.lock:
+            self.fix_times[agent].append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
 
     def on_prediction(self, msg):
         """Keep one of the estimator's one-step predictions."""
@@ -133,7 +153,7 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     from herd_ros.nodes.fleet_sim import FleetSim
     from herd_ros.nodes.gps_ingest import GpsIngest
     from herd_ros.nodes.replay import Replay
-    from herd_ros.report.demo_report import write_demo_report
+    from herd_ros.report.demo_report import seen_at_fixes, write_demo_report
     from herd_ros.trajectory import HerdTrajectory
 
     # absolute: the nodes resolve a relative model/checkpoint path under their data
@@ -182,7 +202,7 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
         from rclpy.node import Node
         recorder_node = Node('demo_recorder', parameter_overrides=[rclpy.parameter.Parameter(
                                  'use_sim_time', rclpy.parameter.Parameter.Type.BOOL, True)])
-        recorder = DemoRecorder(recorder_node, len(robots))
+        recorder = DemoRecorder(recorder_node, len(robots), agents)
         nodes.append(recorder_node)
         for cls in (FleetSim, Controller, Estimator, GpsIngest, Replay):
             nodes.append(cls())
@@ -248,11 +268,22 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
         param_times, thetas = list(recorder.param_times), list(recorder.params)
         pred_times = np.asarray(recorder.pred_times)
         preds = np.asarray(recorder.preds).reshape(-1, len(agents), 2)
+        # each robot where its animal's track was informed: at the animal's fixes
+        fleet_times = np.asarray(recorder.fleet_times)
+        fleet_xy = np.asarray(recorder.fleet).reshape(-1, len(robots), 2)
+        fix_times, fix_xy = [], []
+        for k, a in enumerate(agents[:len(robots)]):          # robot k follows animal k
+            ft = np.unique(np.asarray(recorder.fix_times.get(a, []), dtype=float))
+            fix_times.append(ft)
+            fix_xy.append(robots_at(ft, fleet_times, fleet_xy, interpolate=True)[:, k]
+                          if len(ft) else np.zeros((0, 2)))
     active = np.isfinite(rob).all(axis=(1, 2))
     if len(thetas):
         first_model_t = param_times[0]
         active &= times > first_model_t
     robots_traj = HerdTrajectory(times[active], robots, rob[active])
+    at_fixes = HerdTrajectory(times[active], robots,
+                              seen_at_fixes(times, fix_times, fix_xy)[active])
     from herd_ros.trajectory import write_trajectory_csv
     predictions = HerdTrajectory(pred_times, agents, preds)
     write_trajectory_csv(out / 'herd_poses.csv', cows)
@@ -274,7 +305,8 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
                                         for t, f in pace.history]
     profile_size = int(params['estimator']['ros__parameters'].get('profile_size', 6))
     return write_demo_report(out, cows, robots_traj, agents, param_times, thetas, fence, facts,
-                             law=setup.law, profile_size=profile_size)
+                             law=setup.law, profile_size=profile_size,
+                             robots_at_fixes=at_fixes)
 
 
 def _spin(executor):

@@ -115,6 +115,36 @@ def seen_like_animals(cows: HerdTrajectory, robots: HerdTrajectory,
     return HerdTrajectory(robots.times, list(robots.agents), p)
 
 
+def seen_at_fixes(times, fix_times, fix_positions) -> np.ndarray:
+    """Each robot as its animal's track sees the animal: at herd tick t, the robot's position
+    at its animal's last accepted fix at or before t (NaN before the first).
+
+    A duty-cycled track is informed only when a fix comes in: on the herd clock it stands
+    still between fixes (a random walk's prediction) and jumps at each, so its speed and the
+    spread of its speed at the clock are the collar's sampling as much as the animal's
+    motion. A robot seen the same way is compared like with like; at 1 Hz fixes this is the
+    robot itself.
+
+    Args:
+        times: (T,) herd ticks.
+        fix_times: per robot, its animal's accepted fix stamps (F_k,), increasing.
+        fix_positions: per robot, its own positions (F_k, 2) at those stamps.
+
+    Returns:
+        (T, R, 2) positions.
+    """
+    times = np.asarray(times, dtype=float)
+    out = np.full((len(times), len(fix_times), 2), np.nan)
+    for k, (ft, fp) in enumerate(zip(fix_times, fix_positions)):
+        ft = np.asarray(ft, dtype=float)
+        if not len(ft):
+            continue
+        j = np.searchsorted(ft, times + 1e-9, side='right') - 1
+        ok = j >= 0
+        out[ok, k] = np.asarray(fp, dtype=float).reshape(-1, 2)[j[ok]]
+    return out
+
+
 #: a robot passes when each of its statistics is within this of its animal's (issue 30)
 PASS_BAR = 0.30
 
@@ -143,15 +173,27 @@ def verdict(cows: HerdTrajectory, robots: HerdTrajectory, assignment, rel: dict,
 def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
                       assignment: list[str], param_times, param_thetas, fence=None,
                       facts: dict | None = None, law: str = 'pairwise',
-                      profile_size: int = 0) -> dict:
-    """Figures and ``summary.json`` of the live demo; returns the summary."""
+                      profile_size: int = 0,
+                      robots_at_fixes: HerdTrajectory | None = None) -> dict:
+    """Figures and ``summary.json`` of the live demo; returns the summary.
+
+    The robots' statistics (``robots``, the verdict) see each robot like its animal: only
+    where the animal has a herd pose (:func:`seen_like_animals`) and, given
+    ``robots_at_fixes`` (the robots on the same ticks, :func:`seen_at_fixes`), where its
+    animal's track was informed; ``robots_continuous`` keeps the robots' own positions at
+    the ticks (where the animal has a pose), ``robots_all_samples`` every sample."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cows, robots = _finite_rows(cows), _finite_rows(robots)
     cow_stats = herd_statistics(cows) if cows.n_steps >= 2 else {}
     every_sample = herd_statistics(robots) if robots.n_steps >= 2 else {}
     seen = _finite_rows(seen_like_animals(cows, robots, assignment))
-    robot_stats = herd_statistics(seen) if seen.n_steps >= 2 else {}
+    continuous = herd_statistics(seen) if seen.n_steps >= 2 else {}
+    robot_stats = continuous
+    if robots_at_fixes is not None:
+        at_fixes = _finite_rows(seen_like_animals(cows, _finite_rows(robots_at_fixes),
+                                                  assignment))
+        robot_stats = herd_statistics(at_fixes) if at_fixes.n_steps >= 2 else {}
     rel = {}
     for r, a in zip(robots.agents, assignment):
         if r in robot_stats and a in cow_stats:
@@ -177,7 +219,8 @@ def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
         statistics_figure(cow_stats, by_cow, out / 'fig_statistics.png', labels=('cows',
                                                                                   'robots'))
         figures.append('fig_statistics.png')
-    summary = {'cows': cow_stats, 'robots': robot_stats, 'robots_all_samples': every_sample,
+    summary = {'cows': cow_stats, 'robots': robot_stats, 'robots_continuous': continuous,
+               'robots_all_samples': every_sample,
                'assignment': dict(zip(robots.agents, assignment)),
                'relative_difference': rel, 'herd_relative_difference': herd_rel,
                'verdict': verdict(cows, robots, assignment, rel, herd_rel),
