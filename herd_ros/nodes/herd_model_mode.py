@@ -162,7 +162,7 @@ class HerdModelPolicy:
                  f', stop-and-go noise in {np.shape(regimes[0])[1]} regimes' if regimes
                  else ', Gaussian noise')
         self.status = (f'model of {model.n_agents} animals, dt {model.dt:g} s '
-                       f'({self.source}){noise}')
+                       f'({self.source}){noise}{self._pace_status()}')
         if self.updates == 1 or self.refused_since_adopted:
             a = np.asarray(model.damping, dtype=float)
             self.node.get_logger().info(
@@ -270,6 +270,13 @@ class HerdModelPolicy:
             return
         self.noise_regimes = (cov, trans) if cov.shape[1] > 1 else None
 
+    def _pace_status(self) -> str:
+        """The pace match's factors for the status line (empty before its first change)."""
+        if self.pace is None or not self.pace.updates:
+            return ''
+        f = self.pace.factors[self.node.owned]
+        return f', pace-matched noise x{f.min():.2f}-{f.max():.2f}'
+
     def on_herd_poses(self, msg: PoseArray):
         """A herd tick: each robot against its animal for the pace match
         (:class:`~herd_ros.control.pace_match.PaceMatch`; the robots' positions are their
@@ -288,6 +295,7 @@ class HerdModelPolicy:
         node = self.node
         if self.pace.observe(t, animals[index], node.odom_stamp, node.positions):
             follower.noise_gain = self.pace.factors.copy()
+            self.status = self.status.split(', pace-matched')[0] + self._pace_status()
             f = self.pace.factors[node.owned]
             node.get_logger().info(f'pace match: noise factors {f.min():.2f}-{f.max():.2f} '
                                    f'(each robot\'s speed against its animal\'s)',
