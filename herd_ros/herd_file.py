@@ -207,15 +207,17 @@ MIN_STEPS_PER_PARAMETER = 3
 
 
 def live_law_size(setup) -> int:
-    """Parameters per animal of the estimator's live law for ``setup``
-    (:attr:`herd_ros.model.model_structure.ModelStructure.n_params` with the estimator's
-    default distance profile and no alignment): 1 + 2(N − 1) + 2K pairwise, 1 + B + 2K
-    shared."""
+    """Parameters per animal of the estimator's live law for ``setup``: the
+    :attr:`~herd_ros.model.model_structure.ModelStructure.n_params` of its structure, with
+    the estimator's default distance profile and no alignment (1 + 2(N − 1) + 2K pairwise,
+    1 + B + 2K shared)."""
+    from herd_ros.model.model_structure import ModelStructure
     from herd_ros.params.estimator import PARAMS
-    k = int(setup.field_grid[0]) * int(setup.field_grid[1])
-    middle = (2 * (len(setup.agents) - 1) if setup.law == 'pairwise'
-              else int(PARAMS['profile_size'].default))
-    return 1 + middle + 2 * k
+    return ModelStructure(tuple(setup.agents), float(setup.dt), setup.law,
+                          tuple(int(g) for g in setup.field_grid),
+                          tuple(float(b) for b in setup.field_bounds),
+                          float(setup.interaction_radius),
+                          int(PARAMS['profile_size'].default)).n_params
 
 
 def node_parameters(setup: HerdSetup, bag, out_dir=None, rate=None,

@@ -263,14 +263,13 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     with recorder.lock:
         times = np.asarray(recorder.herd_times)
         cows = HerdTrajectory(times, agents, np.asarray(recorder.herd).reshape(-1, len(agents), 2))
-        rob = robots_at(times, recorder.fleet_times,
-                        np.asarray(recorder.fleet).reshape(-1, len(robots), 2))
+        fleet_times = np.asarray(recorder.fleet_times)
+        fleet_xy = np.asarray(recorder.fleet).reshape(-1, len(robots), 2)
+        rob = robots_at(times, fleet_times, fleet_xy)
         param_times, thetas = list(recorder.param_times), list(recorder.params)
         pred_times = np.asarray(recorder.pred_times)
         preds = np.asarray(recorder.preds).reshape(-1, len(agents), 2)
         # each robot where its animal's track was informed: at the animal's fixes
-        fleet_times = np.asarray(recorder.fleet_times)
-        fleet_xy = np.asarray(recorder.fleet).reshape(-1, len(robots), 2)
         fix_times, fix_xy = [], []
         for k, a in enumerate(agents[:len(robots)]):          # robot k follows animal k
             ft = np.unique(np.asarray(recorder.fix_times.get(a, []), dtype=float))

@@ -69,12 +69,11 @@ def aligned_data(run, positions, dt: float):
     return positions[int(first_pairs(positions)[0].min()):]
 
 
-def compare_with_data(traj, data, dt: float, source) -> str:
+def compare_with_data(seen, span, dt: float, source) -> str:
     """The free-run statistics of the simulation against the initial trajectory over the
-    steps both cover, the simulation seen where the data are
+    steps both cover: ``seen`` the simulation seen where the data ``span`` are
     (:func:`~herd_ros.simulation.free_run.observed_like`)."""
-    from herd_ros.simulation.free_run import STATISTICS, observed_like, shape_and_pace
-    seen, span = observed_like(traj, data, traj.times[0] + dt * np.arange(len(data)))
+    from herd_ros.simulation.free_run import STATISTICS, shape_and_pace
     if len(span) < 4:
         return f'(too few steps of {source} to compare with)'
     with empty_slices_quiet():
@@ -117,13 +116,13 @@ def run(args) -> int:
                         progress=bar.update)
     bar.close()
     if data is not None:
-        print(compare_with_data(traj, data, model.dt, args.initial))
-        if args.seen_like_initial:
-            span = data[:traj.n_steps]
-            seen = traj.positions.copy()
-            seen[:len(span)][~np.isfinite(span).all(axis=-1)] = np.nan
-            seen[len(span):] = np.nan
-            traj = HerdTrajectory(traj.times, list(traj.agents), seen)
+        from herd_ros.simulation.free_run import observed_like
+        seen, span = observed_like(traj, data, traj.times[0] + model.dt * np.arange(len(data)))
+        print(compare_with_data(seen, span, model.dt, args.initial))
+        if args.seen_like_initial:          # the steps past the data's: nowhere seen
+            out = np.full(traj.positions.shape, np.nan)
+            out[:len(seen)] = seen
+            traj = HerdTrajectory(traj.times, list(traj.agents), out)
     write_trajectory_csv(args.output, traj)
     stats = herd_statistics(traj)
     print(f'wrote {args.steps} steps of {model.n_agents} agents to {args.output}'

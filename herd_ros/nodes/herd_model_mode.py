@@ -53,6 +53,7 @@ class HerdModelPolicy:
         # the estimator's structure says which pose is which animal)
         self.match_pace = bool(p['match_pace']) and self.noise and self.source == 'topic'
         self.pace: PaceMatch | None = None
+        self._pace_for = self._pace_index = None   # the structure the robots' rows are for
         if self.source == 'file':
             model = self._model_from_parameters()
             problem, warning = damping_check(model.damping, list(model.agents))
@@ -285,10 +286,14 @@ class HerdModelPolicy:
         if st is None or follower is None or len(msg.poses) != len(st.agents):
             return
         animals = np.array([(q.position.x, q.position.y) for q in msg.poses], dtype=float)
-        try:
-            index = [list(st.agents).index(a) for a in self._assignment(list(st.agents))]
-        except ParameterError:
-            return
+        if self._pace_for is not st:              # each robot's animal's row of the poses
+            try:
+                where = {a: i for i, a in enumerate(st.agents)}
+                self._pace_index = [where[a] for a in self._assignment(list(st.agents))]
+            except ParameterError:
+                return
+            self._pace_for = st
+        index = self._pace_index
         if self.pace is None or self.pace.lag != follower.dt or self.pace.n != len(index):
             self.pace = PaceMatch(len(index), follower.dt)
         t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9

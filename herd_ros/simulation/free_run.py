@@ -25,7 +25,7 @@ absent from the data is absent from the run, and both are compared over the run'
 the observation process applied to the simulation, as in simulated-moment methods
 (Gouriéroux, Monfort & Renault 1993). On 72-hour three-steer herds with one steer 1.3 km
 off and duty-cycled collars (``test/bench/bench_free_run.py``), the data's spread is
-148-186 m, the runs' 15-19 m seen whole and 155-186 m seen like the data.
+148-186 m, the runs' 4-16 m seen whole and 148-186 m seen like the data.
 """
 from __future__ import annotations
 
