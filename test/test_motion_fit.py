@@ -183,3 +183,28 @@ def test_a_refit_on_the_same_fixes_is_no_worse_than_the_first_fit():
         assert g.aic <= f.aic + 0.5, (f, g)
         if g.model == f.model:
             assert g.loglik >= f.loglik - 0.5, (f, g)
+
+
+def test_the_start_values_of_all_collars_at_once_are_each_collars_own():
+    """The vectorised starts (interval percentiles, the variogram's least squares) of
+    padded collars of different lengths equal numpy's per-collar percentile and lstsq."""
+    from herd_ros.ingest.motion_fit import interval_percentile, moment_start
+    rng = np.random.default_rng(7)
+    N, K = 12, 40
+    t = np.cumsum(rng.uniform(1.0, 300.0, (N, K)), axis=1)
+    z = np.cumsum(rng.normal(0.0, 5.0, (N, K, 2)), axis=1)
+    n = rng.integers(3, K + 1, N)
+    for j in range(N):
+        t[j, n[j]:] = t[j, n[j] - 1]
+        z[j, n[j]:] = 1e6                     # padding never enters
+    D, s2 = moment_start(t, z, None, n, 0.25)
+    for q in (10.0, 50.0):
+        got = interval_percentile(t, n, q)
+        want = [np.percentile(np.diff(t[j, :n[j]]), q) for j in range(N)]
+        assert np.allclose(got, want, rtol=1e-12)
+    for j in range(N):
+        dt = np.diff(t[j, :n[j]])
+        y = 0.25 * (np.diff(z[j, :n[j]], axis=0) ** 2).sum(axis=1)
+        coef = np.linalg.lstsq(np.column_stack([dt, np.full(len(dt), 2.0)]), y, rcond=None)[0]
+        assert D[j] == pytest.approx(np.clip(coef[0], 1e-5, 1e3), rel=1e-9)
+        assert s2[j] == pytest.approx(np.clip(coef[1], 0.25, 1e4), rel=1e-9)

@@ -347,10 +347,7 @@ def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
     sm_free = unknown.any(axis=1)         # per collar: some fixes without a covariance
     fit_sm = bool(sm_free.any())
     # the random-walk limit: τ_v a tenth of the collar's 10th-percentile interval
-    tv_rw = np.empty(N)
-    for j in range(N):
-        d = np.diff(t[j, :n[j]])
-        tv_rw[j] = max(0.05, 0.1 * float(np.percentile(d, 10)))
+    tv_rw = np.maximum(0.05, 0.1 * interval_percentile(t, n, 10.0))
     floor2 = float(position_std_floor) ** 2
     from herd_ros.ingest import collar_bank
     if collar_bank.AVAILABLE:
@@ -386,25 +383,46 @@ def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
     return out
 
 
+def interval_percentile(t, n, q: float) -> np.ndarray:
+    """Per collar, the ``q``-th percentile of its intervals ``diff(t[j, :n[j]])`` (numpy's
+    default linear interpolation), for all collars at once (t (N, K) padded, n (N,) ≥ 2)."""
+    t = np.asarray(t, float)
+    n = np.asarray(n, np.int64)
+    m = np.maximum(n - 1, 1)
+    d = np.diff(t, axis=1)
+    d = np.where(np.arange(d.shape[1])[None, :] < (n - 1)[:, None], d, np.inf)
+    d.sort(axis=1)
+    h = (m - 1) * (q / 100.0)
+    lo = np.floor(h).astype(np.int64)
+    hi = np.minimum(lo + 1, m - 1)
+    rows = np.arange(len(n))
+    a, b = d[rows, lo], d[rows, hi]
+    return a + (h - lo) * np.where(hi > lo, b - a, 0.0)
+
+
 def moment_start(t, z, r, n, floor2):
     """Starting values (D, σ_m²) per collar from the variogram of consecutive fixes: per
     axis ``E |Δz|²/2 = D Δt + 2 σ_m²`` for a random walk seen with white noise, fitted by
-    least squares over each collar's pairs (then kept within sane bounds)."""
+    least squares over each collar's pairs (then kept within sane bounds); the 2 × 2 normal
+    equations of all collars at once."""
+    n = np.asarray(n, np.int64)
     N = len(n)
-    D = np.full(N, 0.05)
-    s2 = np.full(N, max(floor2, 1.0))
-    for j in range(N):
-        m = n[j]
-        if m < 3:
-            continue
-        dt = np.diff(t[j, :m])
-        y = 0.25 * (np.diff(z[j, :m], axis=0) ** 2).sum(axis=1)     # per axis, halved
-        A = np.column_stack([dt, np.full(len(dt), 2.0)])
-        coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-        if np.isfinite(coef).all():
-            D[j] = float(np.clip(coef[0], 1e-5, 1e3))
-            s2[j] = float(np.clip(coef[1], floor2, 1e4))
-    return D, s2
+    dt = np.diff(t, axis=1)
+    valid = np.arange(dt.shape[1])[None, :] < (n - 1)[:, None]
+    y = np.where(valid, 0.25 * (np.diff(z, axis=1) ** 2).sum(axis=2), 0.0)  # per axis, halved
+    x = np.where(valid, dt, 0.0)
+    w = valid.astype(float)
+    # minimise Σ (D x + 2 s − y)²: [[Σx², 2Σx], [2Σx, 4Σ1]] (D, s) = (Σxy, 2Σy)
+    sxx, sx, s1 = (x * x).sum(1), x.sum(1), w.sum(1)
+    sxy, sy = (x * y).sum(1), y.sum(1)
+    det = 4.0 * (sxx * s1 - sx * sx)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        D = (4.0 * s1 * sxy - 4.0 * sx * sy) / det
+        s2 = (2.0 * sxx * sy - 2.0 * sx * sxy) / det
+    ok = (n >= 3) & np.isfinite(D) & np.isfinite(s2) & (np.abs(det) > 1e-12 * (sxx * s1 + 1.0))
+    D = np.where(ok, np.clip(np.nan_to_num(D), 1e-5, 1e3), 0.05)
+    s2 = np.where(ok, np.clip(np.nan_to_num(s2), floor2, 1e4), max(floor2, 1.0))
+    return D.reshape(N), s2.reshape(N)
 
 
 def _nelder_mead_fits(t, z, r, n, tv_rw, sm_free, floor2, walk, prev, scout: int = 60):
@@ -512,7 +530,7 @@ def _nelder_mead_fits(t, z, r, n, tv_rw, sm_free, floor2, walk, prev, scout: int
     # grid misses; a refit follows the better one from its previous optimum
     c = np.flatnonzero(~warm)
     if len(c):
-        med = np.array([np.median(np.diff(t[j, :n[j]])) for j in c])
+        med = interval_percentile(t[c], n[c], 50.0)
         tau = np.clip(med, 3.0 * tv_rw[c], TAU_MAX)
         x1 = x0.copy()
         x1[c] = np.column_stack([np.log10(tau), xr[c, 1] + np.log10(tv_rw[c] / tau),
