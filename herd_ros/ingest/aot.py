@@ -53,11 +53,11 @@ EXPORTS = {
         ('i8', 1, False), ('f8', 1, False), ('f8', 1, False), ('f8', 1, False),
         ('i8', 1, False), ('f8', 3, False),
         # the bank: t, x, P, ever, last_pos, last_report, counters, n_cand, cand_jump,
-        # cand_len, cand_t, cand_z, cand_r, range moments
+        # cand_len, cand_t, cand_z, cand_r, range moments, left place
         ('f8', 1, True), ('f8', 2, True), ('f8', 3, True), ('b1', 1, True),
         ('f8', 1, True), ('f8', 1, True), ('i8', 2, True), ('i8', 1, True),
         ('b1', 2, True), ('i8', 2, True), ('f8', 3, True), ('f8', 4, True),
-        ('f8', 5, True), ('f8', 2, True),
+        ('f8', 5, True), ('f8', 2, True), ('f8', 2, True),
         # accel_std (N,), velocity_tau (N,), max_speed, cruise_speed, sprint_s, gate,
         # gate_sigma, v0, confirm, reacquire, confirm_lost, reinit_after_gap,
         # range_sigmas, range_margin, range_min

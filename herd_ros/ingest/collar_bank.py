@@ -155,6 +155,8 @@ class CollarBank:
         self.cand_r = np.zeros((n, MAX_CANDIDATES, L, 2, 2))
         # [n, Σx, Σy, Σx², Σxy, Σy²] of each collar's accepted states: its range
         self.range_moments = np.zeros((n, 6))
+        # [t, e, n, r_ee, r_en, r_nn, fixes left] of the place each track left (t NaN: none)
+        self.left_place = np.full((n, 7), np.nan)
         self.accel_std = np.full(n, float(self.params.accel_std))
         self.velocity_tau = np.full(n, float(self.params.velocity_tau))
         self.position_std = np.full(n, float(self.params.default_position_std))
@@ -240,7 +242,7 @@ class CollarBank:
             collar, stamp, east, north, status, R,
             self.t, self.x, self.P, self.ever, self.last_position_fix, self.last_report,
             self.counters, self.n_candidates, self.cand_jump, self.cand_len, self.cand_t,
-            self.cand_z, self.cand_r, self.range_moments,
+            self.cand_z, self.cand_r, self.range_moments, self.left_place,
             self.accel_std, self.velocity_tau, float(p.max_speed),
             float(p.cruise_speed), float(p.sprint_s), gate, math.sqrt(gate),
             float(p.initial_velocity_std or p.max_speed),

@@ -90,6 +90,19 @@ the range is followed after ``reacquire_fixes`` fixes instead of ``confirm_fixes
 range grows to take it in. The same rule applies to a lost track's first chain (and a fix
 inside the range joins no such chain).
 
+**The place the track left.** A burst a few hundred metres off whose fixes are within reach
+of the track and of each other looks like a relocation and is followed on
+``confirm_fixes``; when the fixes then come back to where the animal was, they are beyond
+the speed envelope of the track (now at the burst) and were treated as a jump, so the track
+stayed on the burst's place for ``reacquire_fixes`` fixes and went stale (measured on the
+synthetic collared cows: a burst of five fixes 330 m off, taken, then six genuine fixes
+rejected). Both hypotheses are now kept until the fixes decide: when the track moves to a
+reachable chain, the place it left (its last state's position and covariance) is kept for
+its next ``reacquire_fixes`` accepted fixes, and a fix beyond the track's envelope but
+within the envelope of that place starts (or continues) a reachable chain, confirmed on
+``confirm_fixes``: the track returns on the second fix back. When the new place holds for
+``reacquire_fixes`` accepted fixes, the left place is dropped (a real relocation).
+
 Any fix the track accepts closes the open candidates (the burst is over). Isolated outliers
 in random directions never form a chain.
 
@@ -260,6 +273,25 @@ class FilterParams:
         tau = np.maximum(np.asarray(tau, dtype=float), 0.0)
         sprint = np.minimum(tau, self.sprint_s)
         return self.max_speed * sprint + self.cruise_speed * (tau - sprint)
+
+
+@dataclass
+class LeftPlace:
+    """Where a track was (its last accepted state's position ``z`` and covariance ``r`` at
+    ``t``) before it moved to a reachable chain, kept for its next ``fixes_left`` accepted
+    fixes (module docstring: *the place the track left*)."""
+
+    t: float
+    z: np.ndarray
+    r: np.ndarray
+    fixes_left: int
+
+    def reaches(self, stamp, z, r, params, gate_sigma) -> bool:
+        """The fix is within the speed envelope of this place: ``‖z − z_left‖ ≤
+        d_max(stamp − t) + c·σ``, ``σ² = λ_max(R + r)``."""
+        sigma = float(np.sqrt(np.linalg.eigvalsh(r + self.r)[-1]))
+        return float(np.hypot(*(z - self.z))) <= float(params.reach(stamp - self.t)) \
+            + gate_sigma * sigma
 
 
 def outside_range(moments, z, sigmas: float, margin: float, min_fixes: int) -> bool:
@@ -436,6 +468,8 @@ class CollarFilter:
         candidates: the open candidate tracks (at most :attr:`MAX_CANDIDATES`).
         range_moments: [n, Σx, Σy, Σx², Σxy, Σy²] of the accepted states (the collar's
             range, :func:`outside_range`).
+        left_place: where the track was before it last moved to a reachable chain (the
+            hypothesis that the chain was a burst; module docstring), or None.
     """
 
     #: open candidate chains kept at once (the oldest is dropped)
@@ -460,6 +494,7 @@ class CollarFilter:
         self._ever_initialised = False
         self._last_position_fix = -np.inf     # stamp of the last fix with a position
         self.range_moments = np.zeros(6)      # [n, Σx, Σy, Σx², Σxy, Σy²] of accepted states
+        self.left_place: LeftPlace | None = None
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -545,7 +580,11 @@ class CollarFilter:
         sigma = float(np.sqrt(np.linalg.eigvalsh(r + self.P[:2, :2])[-1]))
         allowed = float(p.reach(tau)) + self._gate_sigma * sigma
         if dist > allowed:
-            return self._candidate_fix(stamp, z, r, 'speed', True,
+            # beyond reach of the track, but maybe not of where it was before it last
+            # moved: then the fix may be the animal back from a burst the track followed
+            jump = self.left_place is None or not self.left_place.reaches(
+                stamp, z, r, p, self._gate_sigma)
+            return self._candidate_fix(stamp, z, r, 'speed', jump,
                                        f'{dist:.1f} m in {tau:.3g} s is beyond reach '
                                        f'(allowed {allowed:.1f} m)')
         # Mahalanobis distance of the innovation
@@ -596,6 +635,10 @@ class CollarFilter:
         self.t = stamp
         self.candidates.clear()
         self.counters['accepted'] += 1
+        if self.left_place is not None:
+            self.left_place.fixes_left -= 1
+            if self.left_place.fixes_left <= 0:
+                self.left_place = None       # the new place has held: no burst
         return FixResult(True, 'accepted', '', d2)
 
     # -- internals ------------------------------------------------------------------------
@@ -634,6 +677,7 @@ class CollarFilter:
         """No accepted fix for ``reinit_after_gap``: the old state means nothing any more."""
         self.t = float('nan')
         self.candidates.clear()
+        self.left_place = None
 
     def _reject(self, reason, detail, d2=float('nan')):
         self.counters[f'rejected_{reason}'] += 1
@@ -688,6 +732,7 @@ class CollarFilter:
             return FixResult(False, 'unconfirmed', f'track lost or not started: waiting for '
                              f'{need} consistent fixes ({len(chain.fixes)} so far)')
         first = not self._ever_initialised
+        self.left_place = None
         self._adopt(chain)
         if first:
             return FixResult(True, 'accepted', f'track started on {need} consistent fixes')
@@ -703,6 +748,8 @@ class CollarFilter:
         need = int(self.params.reacquire_fixes if chain.jump else self.params.confirm_fixes)
         if len(chain.fixes) < need:
             return self._reject(reason, detail, d2)
+        self.left_place = None if chain.jump else LeftPlace(
+            self.t, self.x[:2].copy(), self.P[:2, :2].copy(), int(self.params.reacquire_fixes))
         self._adopt(chain)
         self.counters['reinitialised'] += 1
         kind = 'beyond reach or far outside its range' if chain.jump else 'outside the gate'

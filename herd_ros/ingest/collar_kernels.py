@@ -323,9 +323,19 @@ def _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t, cand_z, 
 
 
 @_jit
+def _held(left, i):
+    """An accepted fix at the track's place: one fewer for the place it left (dropped at
+    zero: the new place has held)."""
+    if math.isfinite(left[i, 0]):
+        left[i, 6] -= 1.0
+        if left[i, 6] <= 0.0:
+            left[i, 0] = np.nan
+
+
+@_jit
 def process_batch(collar, stamp, east, north, status, R,
                    t, x, P, ever, last_pos, last_report, counters, n_cand, cand_jump,
-                   cand_len, cand_t, cand_z, cand_r, rng,
+                   cand_len, cand_t, cand_z, cand_r, rng, left,
                    accel_std, velocity_tau, max_speed, cruise_speed, sprint_s, gate,
                    gate_sigma, v0, confirm, reacquire, confirm_lost, reinit_after_gap,
                    range_sigmas, range_margin, range_min,
@@ -335,7 +345,9 @@ def process_batch(collar, stamp, east, north, status, R,
     ``accel_std`` and ``velocity_tau`` are per collar (N,); ``walk_accel`` ≤ 0 = no walk
     component (else the motion mixture of FilterParams.walk, prior weight ``walk_prob``,
     its fixes' variance raised by ``walk_r2``); ``rng`` (N, 6) the moments of each
-    collar's accepted states (its range: a chain far outside it needs ``reacquire``)."""
+    collar's accepted states (its range: a chain far outside it needs ``reacquire``);
+    ``left`` (N, 7) = [t, e, n, r_ee, r_en, r_nn, fixes left] the place each collar's track
+    left when it last moved to a reachable chain (t NaN: none; CollarFilter.left_place)."""
     xp = np.empty(4)
     Pp = np.empty((4, 4))
     xw = np.empty(4)
@@ -375,6 +387,7 @@ def process_batch(collar, stamp, east, north, status, R,
             if math.isfinite(t[i]) and silence > reinit_after_gap:
                 t[i] = np.nan               # the track is lost
                 n_cand[i] = 0
+                left[i, 0] = np.nan
             chain = -1
             reason = -1                     # rejection reason if the chain is not adopted
             if not math.isfinite(t[i]):
@@ -387,6 +400,7 @@ def process_batch(collar, stamp, east, north, status, R,
                     counters[i, C_UNCONF] += 1
                 else:
                     first = not ever[i]
+                    left[i, 0] = np.nan
                     _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
                            cand_z, cand_r, accel_std[i], velocity_tau[i], v0)
                     if first:
@@ -404,7 +418,15 @@ def process_batch(collar, stamp, east, north, status, R,
                 allowed = _reach(tau, max_speed, cruise_speed, sprint_s) + gate_sigma * sigma
                 if dist > allowed:
                     reason = SPEED
-                    chain = _attach(i, -1, s, z0, z1, r, True, n_cand, cand_jump, cand_len,
+                    # beyond reach of the track, maybe not of the place it left
+                    jump = True
+                    if math.isfinite(left[i, 0]):
+                        sl = math.sqrt(_max_eig(r[0, 0] + left[i, 3], r[1, 0] + left[i, 4],
+                                                r[1, 1] + left[i, 5]))
+                        jump = math.hypot(z0 - left[i, 1], z1 - left[i, 2]) > _reach(
+                            s - left[i, 0], max_speed, cruise_speed, sprint_s) \
+                            + gate_sigma * sl
+                    chain = _attach(i, -1, s, z0, z1, r, jump, n_cand, cand_jump, cand_len,
                                     cand_t, cand_z, cand_r, max_speed, cruise_speed,
                                     sprint_s, gate_sigma)
                 else:
@@ -461,6 +483,7 @@ def process_batch(collar, stamp, east, north, status, R,
                         n_cand[i] = 0
                         counters[i, C_ACC] += 1
                         code = ACCEPTED
+                        _held(left, i)
                     elif chain < 0:           # accepted: filterpy predict + update
                         xi[:] = xp
                         Pi[:, :] = Pp
@@ -469,6 +492,7 @@ def process_batch(collar, stamp, east, north, status, R,
                         n_cand[i] = 0
                         counters[i, C_ACC] += 1
                         code = ACCEPTED
+                        _held(left, i)
                 if chain >= 0:
                     need = reacquire if cand_jump[i, chain] else confirm
                     if cand_len[i, chain] < need:
@@ -480,6 +504,16 @@ def process_batch(collar, stamp, east, north, status, R,
                         else:
                             counters[i, C_GATE] += 1
                     else:
+                        if cand_jump[i, chain]:
+                            left[i, 0] = np.nan
+                        else:                 # keep the place the track leaves
+                            left[i, 0] = t[i]
+                            left[i, 1] = x[i, 0]
+                            left[i, 2] = x[i, 1]
+                            left[i, 3] = P[i, 0, 0]
+                            left[i, 4] = P[i, 1, 0]
+                            left[i, 5] = P[i, 1, 1]
+                            left[i, 6] = reacquire
                         _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
                                cand_z, cand_r, accel_std[i], velocity_tau[i], v0)
                         counters[i, C_REINIT] += 1

@@ -1,0 +1,89 @@
+"""Both hypotheses kept after a track moves (collar_filter, *the place the track left*): a
+burst within reach that the track followed does not hold it when the fixes come back — the
+track returns on the second fix back — while a real move to a new place is kept, and the
+compiled bank does the same fix by fix."""
+import numpy as np
+import pytest
+
+from herd_ros.ingest.collar_bank import OUTCOMES, CollarBank
+from herd_ros.ingest.collar_filter import CollarFilter, FilterParams
+from herd_ros.ingest.pipeline import DEFAULT_ACCEL_STD, DEFAULT_VELOCITY_TAU
+
+pytestmark = pytest.mark.usefixtures('kernels')
+
+HOME = 30           # grazing fixes, one a minute
+PLACE = np.array([330.0, 0.0])
+
+
+def params():
+    """The ingest's default model, the range rule off: the burst's place is inside the
+    range (a paddock the herd crosses), so only reachability tells a burst from a move."""
+    return FilterParams(accel_std=DEFAULT_ACCEL_STD, velocity_tau=DEFAULT_VELOCITY_TAU,
+                        range_sigmas=0.0)
+
+
+def away_and_back(k_away=3, k_back=6, seed=0):
+    """Grazing about the origin (σ 5 m, a fix a minute), a silence of 5 min (330 m is then
+    within reach: 3·60 + 1·240 m), ``k_away`` fixes 330 m off a minute apart, then
+    ``k_back`` fixes home again a minute apart (330 m in a minute is beyond reach)."""
+    rng = np.random.default_rng(seed)
+    t = 60.0 * np.arange(HOME)
+    t = np.r_[t, t[-1] + 300.0 + 60.0 * np.arange(k_away)]
+    t = np.r_[t, t[-1] + 60.0 * np.arange(1, k_back + 1)]
+    z = rng.normal(0.0, 5.0, (len(t), 2))
+    z[HOME:HOME + k_away] += PLACE
+    return t, z
+
+
+def run(t, z):
+    f = CollarFilter(params())
+    return f, [f.update(s, e, n) for s, (e, n) in zip(t, z)]
+
+
+def test_the_track_comes_back_from_a_burst_it_followed():
+    t, z = away_and_back()
+    f, out = run(t, z)
+    reasons = [r.reason for r in out]
+    assert reasons[HOME:HOME + 3] == ['gate', 'reinitialised', 'accepted']   # followed
+    back = HOME + 3
+    # the first fix back is beyond reach of the track (at the burst), within reach of the
+    # place it left: a reachable chain, confirmed on the second fix
+    assert reasons[back] == 'speed' and reasons[back + 1] == 'reinitialised'
+    assert all(r.accepted for r in out[back + 1:])
+    assert np.hypot(*f.x[:2]) < 20.0
+    assert f.left_place is not None and np.hypot(*(f.left_place.z - PLACE)) < 20.0
+
+
+def test_without_a_place_left_the_fixes_back_are_a_jump():
+    """The same fixes when the track reached the burst place by walking there (accepted
+    fix by fix, no chain adopted): nothing is kept, and the way back is a jump."""
+    t, z = away_and_back()
+    f = CollarFilter(params())
+    for s, (e, n) in zip(t[:HOME + 3], z[:HOME + 3]):
+        f.update(s, e, n)
+    f.left_place = None
+    out = [f.update(s, e, n) for s, (e, n) in zip(t[HOME + 3:], z[HOME + 3:])]
+    assert [r.reason for r in out] == ['speed'] * 6
+
+
+def test_a_real_move_is_kept_and_the_place_left_forgotten():
+    t, z = away_and_back(k_away=3 + FilterParams().reacquire_fixes + 5, k_back=0)
+    f, out = run(t, z)
+    assert out[HOME + 1].reason == 'reinitialised'
+    assert all(r.accepted for r in out[HOME + 1:])
+    assert f.left_place is None                     # the new place held
+    assert np.hypot(*(f.x[:2] - PLACE)) < 20.0
+
+
+def test_the_bank_does_the_same_fix_by_fix():
+    cases = [away_and_back(), away_and_back(k_away=4, k_back=3, seed=1),
+             away_and_back(k_away=20, k_back=0, seed=2)]
+    bank = CollarBank(len(cases), params())
+    for i, (t, z) in enumerate(cases):
+        m = len(t)
+        R = bank.measurement_covariances(np.zeros(m, np.int64), np.zeros((m, 9)))
+        batch = bank.process(np.full(m, i), t, z[:, 0], z[:, 1], np.zeros(m, np.int64), R)
+        f, ref = run(t, z)
+        assert [OUTCOMES[c] for c in batch.outcome] == [r.reason for r in ref]
+        assert np.allclose(bank.x[i], f.x, atol=1e-9)
+        assert np.isnan(bank.left_place[i, 0]) == (f.left_place is None)
