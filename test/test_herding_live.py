@@ -11,9 +11,9 @@ from herd_ros.herding.benchmark import GOAL, GOAL_RADIUS
 from herd_ros.herding.live_graph import budget_s, herding_parameters
 
 
-def run_demo(tmp_path, ros_env, console_script, seeds, *extra):
-    """``herd-ros demo --herding`` on up to ``seeds`` until one succeeds: (out dir, stdout);
-    asserts one did."""
+def run_demo(tmp_path, ros_env, console_script, seeds, *extra, wanted=None):
+    """``herd-ros demo --herding`` on up to ``seeds`` until one succeeds (and, if given,
+    its log holds ``wanted``): (out dir, stdout); asserts one did."""
     logs = []
     for seed in seeds:
         out = tmp_path / f'herding_{seed}'
@@ -21,8 +21,9 @@ def run_demo(tmp_path, ros_env, console_script, seeds, *extra):
                                str(out), '--seed', str(seed), *extra], env=ros_env,
                               capture_output=True, text=True, timeout=300)
         logs.append(proc.stdout[-1500:] + proc.stderr[-1500:])
-        if proc.returncode == 0:
-            return out, proc.stdout + proc.stderr
+        log = proc.stdout + proc.stderr
+        if proc.returncode == 0 and (wanted is None or wanted in log):
+            return out, log
     raise AssertionError(logs)
 
 
@@ -58,12 +59,13 @@ def test_demo_herding_brings_the_herd_into_the_goal(tmp_path, ros_env, console_s
 
 
 def test_the_model_herder_takes_over_in_the_live_graph(tmp_path, ros_env, console_script):
-    """``--herder model``: the controller learns the response (Strömbom's shepherd herding
-    meanwhile; at 10 × real time that is the first ~100 s), then the model herder drives,
-    and the herd ends inside the goal."""
-    out, log = run_demo(tmp_path, ros_env, console_script, (1, 2), '--rate', '10',
-                        '--herder', 'model')
-    assert 'the model herder drives from now on' in log
+    """``--herder model``: the controller learns the response in a worker process
+    (Strömbom's shepherd herding meanwhile; at 10 × real time the first 100-400 s), then the
+    model herder drives, and the herd ends inside the goal. Strömbom's shepherd sometimes
+    brings the herd home before the learning is done (in 165 s once): such a run says
+    nothing of the model herder, and the next seed is run."""
+    out, log = run_demo(tmp_path, ros_env, console_script, (1, 2, 3, 4), '--rate', '10',
+                        '--herder', 'model', wanted='the model herder drives from now on')
     assert check_home(out)['herder'] == 'model'
 
 

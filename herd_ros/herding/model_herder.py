@@ -177,6 +177,24 @@ def learn_response(runs) -> LearnedResponse:
                            dyn.choices)
 
 
+def learn_model_herder(n_animals: int, n_robots: int) -> 'ModelHerder':
+    """The model herder of a herd of ``n_animals`` and ``n_robots`` herders: the response
+    learned from simulated recordings (:func:`record_episodes`, :func:`learn_response`)."""
+    from herd_ros.herding.benchmark import Setting
+    return ModelHerder(learn_response(record_episodes(Setting(n_animals, n_robots))))
+
+
+def learn_model_herder_into(conn, n_animals: int, n_robots: int):
+    """:func:`learn_model_herder` in a worker process: sends ``('herder', ModelHerder)`` or
+    ``('error', message)`` through the pipe end ``conn``."""
+    try:
+        conn.send(('herder', learn_model_herder(n_animals, n_robots)))
+    except Exception as exc:                # noqa: BLE001 (reported by the node)
+        conn.send(('error', f'{type(exc).__name__}: {exc}'))
+    finally:
+        conn.close()
+
+
 class ModelHerder:
     """Receding-horizon herder over a :class:`LearnedResponse` (module docstring); a policy
     for :func:`~herd_ros.herding.benchmark.run_episodes`. With ``adapt`` the response is

@@ -9,9 +9,11 @@ odometry, and the ``herder`` gives each robot a target:
   otherwise; several robots collect the furthest few and drive from an arc);
 * ``model``: the model herder (:class:`herd_ros.herding.model_herder.ModelHerder`,
   receding-horizon control over the animals' learned response to the robots). At the first
-  herd it learns that response, in a worker thread, from simulated recordings of as many
-  animals and robots (:func:`~herd_ros.herding.model_herder.learn_response`; ~10 s for
-  14 animals; Strömbom's shepherd herds meanwhile), then it is called once per new herd
+  herd it learns that response, in a spawned worker process (the fit is Python-heavy: in a
+  thread it held the node's GIL, and on a slow machine the herd was home before it was
+  done), from simulated recordings of as many animals and robots
+  (:func:`~herd_ros.herding.model_herder.learn_model_herder`; 10-30 s for 14 animals;
+  Strömbom's shepherd herds meanwhile), then it is called once per new herd
   snapshot (the law's 1 s step) and refits the response online from what it sees.
 
 :func:`~herd_ros.herding.strombom.herder_velocities` turns a target into a velocity of
@@ -116,17 +118,31 @@ class HerdingPolicy:
         return out
 
     def _learn(self, n_animals: int, n_robots: int):
-        """Learn the model herder in a worker thread (module docstring)."""
-        from herd_ros.herding.benchmark import Setting
-        from herd_ros.herding.model_herder import ModelHerder, learn_response, record_episodes
+        """Learn the model herder in a worker process (module docstring): a spawned
+        interpreter, so the fit (a minute of Python on a slow machine) does not hold the
+        node's GIL; a thread waits for it."""
         box = {}
 
         def work():
+            import multiprocessing
+
+            from herd_ros.herding.model_herder import learn_model_herder_into
+            ctx = multiprocessing.get_context('spawn')
+            recv, send = ctx.Pipe(duplex=False)
+            # a daemon: it ends with the node, whatever it was doing
+            proc = ctx.Process(target=learn_model_herder_into, name='herding-learn',
+                               args=(send, n_animals, n_robots), daemon=True)
             try:
-                setting = Setting(n_animals, n_robots)
-                box['herder'] = ModelHerder(learn_response(record_episodes(setting)))
+                proc.start()
+                send.close()
+                kind, value = recv.recv()
+                box['herder' if kind == 'herder' else 'error'] = value
             except Exception as exc:        # noqa: BLE001 (reported once; Strömbom herds on)
-                box['error'] = f'{type(exc).__name__}: {exc}'
+                box['error'] = (f'{type(exc).__name__}: {exc}' if not isinstance(exc, EOFError)
+                                else 'the learning process ended without a result')
+            finally:
+                recv.close()
+                proc.join(timeout=5.0)
         self.node.get_logger().info(
             f'herding: learning the response of {n_animals} animals to {n_robots} '
             f'robot{"s" * (n_robots > 1)} from simulated recordings; Strömbom\'s shepherd '
