@@ -32,7 +32,8 @@ def _graph(context):
     def arg(name, kind):
         return kind(LaunchConfiguration(name).perform(context))
     params = herding_parameters(arg('animals', int), arg('herders', int), arg('rate', float),
-                                arg('seed', int), herder=arg('herder', str))
+                                arg('seed', int), herder=arg('herder', str),
+                                model_warmup=arg('model_warmup', str))
     return [Node(package='herd_ros', executable=name, name=name, output='screen',
                  parameters=[str(share / 'config' / CONFIG[name]),
                              params[name]['ros__parameters']])
@@ -50,5 +51,8 @@ def generate_launch_description():
                               description="seed of the sheep's start and noise"),
         DeclareLaunchArgument('herder', default_value='strombom',
                               description="the robots' policy: strombom or model"),
+        DeclareLaunchArgument('model_warmup', default_value='strombom',
+                              description='herder model: what the robots do while it learns, '
+                                          'strombom or hold'),
         OpaqueFunction(function=_graph),
     ])

@@ -62,3 +62,26 @@ def test_the_model_herder_learns_then_plans_and_falls_back(ros_env):
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def test_with_model_warmup_hold_the_robots_wait_for_the_model_herder(ros_env):
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
+    node = Node('herding_hold_test', context=context)
+    try:
+        params = {k: v.default for k, v in HERDING.items()} | {'herder': 'model',
+                                                                'model_warmup': 'hold'}
+        policy = HerdingPolicy(node, params)
+        herd = 100.0 + np.random.default_rng(1).uniform(0, 20, (6, 2))
+        robot = [[145.0, 145.0]]
+        policy.on_poses(herd_message(herd))
+        v = policy.command(observation(robot, 0.0))
+        assert policy.phase == 'holding' and (v == 0.0).all()
+        assert 'holding still while the model herder learns' in policy.status
+        policy._learning['thread'].join(timeout=120)
+        policy.on_poses(herd_message(herd - 0.5))
+        v = policy.command(observation(robot, 1.0))
+        assert policy.phase == 'planning' and np.isfinite(v).all() and (v != 0.0).any()
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)

@@ -73,6 +73,11 @@ def add_arguments(p):
                    help="--herding: the robots' policy: strombom (Strömbom et al. 2014's "
                         "shepherd) or model (the learned response, refitted online; "
                         "learned at start, Strömbom's meanwhile) (default: strombom)")
+    p.add_argument('--model-warmup', choices=('strombom', 'hold'), default='strombom',
+                   help="--herding --herder model: what the robots do while the model herder "
+                        "learns: strombom (Strömbom's shepherd herds meanwhile) or hold (they "
+                        "hold still; the model herder does all the herding) "
+                        "(default: strombom)")
     p.add_argument('--offline', action='store_true',
                    help='offline pipeline instead: ingest, batch fit, validation, simulation')
 
@@ -142,7 +147,8 @@ def run_herding(args) -> int:
     if args.animals < 2 or args.herders < 1:
         raise HerdInputError('--animals must be at least 2 and --herders at least 1')
     s = run_herding_demo(args.out, n_animals=args.animals, herders=args.herders, rate=rate,
-                         seed=args.seed, herder=args.herder)
+                         seed=args.seed, herder=args.herder,
+                         model_warmup=args.model_warmup)
     verdict = (f'the herd is inside the goal after {s["time_s"]:.0f} s' if s['success'] else
                f'the herd is not home within {s["budget_s"]:.0f} s '
                f'({s["final_inside"]} of {s["n_animals"]} inside)')

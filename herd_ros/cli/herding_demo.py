@@ -62,7 +62,7 @@ class HerdingRecorder:
 
 def run_herding_demo(out_dir, n_animals: int = 14, herders: int = 1, rate: float = 20.0,
                      seed: int = 0, log=print, progress_period_s: float = 5.0,
-                     herder: str = 'strombom') -> dict:
+                     herder: str = 'strombom', model_warmup: str = 'strombom') -> dict:
     """Run the herding graph until the herd is home or the budget is spent; returns the
     summary written to ``out_dir/summary.json``."""
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -83,7 +83,8 @@ def run_herding_demo(out_dir, n_animals: int = 14, herders: int = 1, rate: float
 
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    params = herding_parameters(n_animals, herders, rate, seed, herder=herder)
+    params = herding_parameters(n_animals, herders, rate, seed, herder=herder,
+                                model_warmup=model_warmup)
     params_file = out / 'herding_parameters.yaml'
     params_file.write_text(dump_yaml(params))
     budget = budget_s(n_animals)

@@ -35,10 +35,11 @@ def budget_s(n_animals: int) -> float:
 
 def herding_parameters(n_animals: int = 14, herders: int = 1, rate: float = 10.0,
                        seed: int = 0, n_neighbours: int = 0, noise: float = 0.3,
-                       herder: str = 'strombom') -> dict:
+                       herder: str = 'strombom', model_warmup: str = 'strombom') -> dict:
     """{node: {'ros__parameters': {...}}} for herd_sim, fleet_sim and controller (each
     node also reads its ``config/<node>.yaml``; these override it); ``herder``: the
-    controller's policy, ``strombom`` or ``model``."""
+    controller's policy, ``strombom`` or ``model``; ``model_warmup``: what the robots do
+    while the model herder learns, ``strombom`` or ``hold``."""
     if n_animals < 2 or herders < 1 or not rate > 0:
         raise ValueError('n_animals >= 2, herders >= 1 and rate > 0 needed')
     if herder not in ('strombom', 'model'):
@@ -61,5 +62,5 @@ def herding_parameters(n_animals: int = 14, herders: int = 1, rate: float = 10.0
             'use_sim_time': True, 'robots': robots, 'mode': 'herding', 'rate_hz': 5.0,
             'max_speed': HERDER_SPEED, 'herder_speed': HERDER_SPEED, 'goal': list(GOAL),
             'goal_radius': GOAL_RADIUS, 'herding_seed': int(seed), 'odom_timeout_s': 2.0,
-            'herder': herder}},
+            'herder': herder, 'model_warmup': model_warmup}},
     }

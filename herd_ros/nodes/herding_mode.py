@@ -64,6 +64,7 @@ class HerdingPolicy:
         self.markers_pub = node.create_publisher(MarkerArray, '/herding/markers', 10)
         self.status = f'waiting for the animals on {self.topic}'
         self.herder = str(p['herder'])
+        self.warmup = str(p['model_warmup'])
         self.model = None                 # the ModelHerder, once learned
         self._learning = None             # the thread learning it: {'herder' | 'error': ...}
         self._model_state: dict = {}
@@ -101,13 +102,18 @@ class HerdingPolicy:
             planned = self._planned(P, dogs) if self.herder == 'model' else None
             if planned is not None:
                 targets, self.phase = planned, 'planning'
-            self.targets = targets[0]
-            out[present] = herder_velocities(dogs[None], targets, P[None], self.sheep,
-                                             self.shepherd, self.rng, state.period)[0]
-        learning = (' (Strömbom\'s shepherd while the model herder learns the response)'
-                    if self.herder == 'model' and self.model is None and
-                    self._learning is not None and not self._learning.get('failed') else '')
+            if self._warming_up() and self.warmup == 'hold':
+                self.phase = 'holding'
+                out[present] = 0.0
+                self.targets = dogs.copy()
+            else:
+                self.targets = targets[0]
+                out[present] = herder_velocities(dogs[None], targets, P[None], self.sheep,
+                                                 self.shepherd, self.rng, state.period)[0]
+        learning = ((' (Strömbom\'s shepherd while the model herder learns the response)'
+                     if self.warmup == 'strombom' else '') if self._warming_up() else '')
         self.status = {'home': 'the herd is inside the goal: holding still',
+                       'holding': 'holding still while the model herder learns the response',
                        'driving': 'driving the herd to the goal',
                        'collecting': 'collecting a straggler',
                        'planning': 'the model herder drives the herd to the goal'}[self.phase] + \
@@ -116,6 +122,11 @@ class HerdingPolicy:
             self._last_markers = state.time
             self.publish_markers(P)
         return out
+
+    def _warming_up(self) -> bool:
+        """The model herder is asked for and still learning (not failed)."""
+        return (self.herder == 'model' and self.model is None and self._learning is not None
+                and not self._learning.get('failed'))
 
     def _learn(self, n_animals: int, n_robots: int):
         """Learn the model herder in a worker process (module docstring): a spawned
@@ -145,8 +156,9 @@ class HerdingPolicy:
                 proc.join(timeout=5.0)
         self.node.get_logger().info(
             f'herding: learning the response of {n_animals} animals to {n_robots} '
-            f'robot{"s" * (n_robots > 1)} from simulated recordings; Strömbom\'s shepherd '
-            'herds meanwhile')
+            f'robot{"s" * (n_robots > 1)} from simulated recordings; '
+            + ("Strömbom's shepherd herds meanwhile" if self.warmup == 'strombom'
+               else 'the robots hold still meanwhile'))
         box['thread'] = threading.Thread(target=work, name='herding-learn', daemon=True)
         box['thread'].start()
         return box

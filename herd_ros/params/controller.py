@@ -407,6 +407,16 @@ HERDING = {
              'robots, Strömbom\'s\n'
              'shepherd herding meanwhile, then refitted online from /herd/poses: '
              'herd_ros/herding/model_herder.py).')),
+    'model_warmup': Param(
+        'strombom',
+        'herder model: what the robots do while the model herder learns',
+        choices=('strombom', 'hold'),
+        doc=('\n'
+             'With herder model, what the robots do while the model herder learns '
+             'its response (10-60 s\n'
+             "of wall time by machine): strombom (Strömbom's shepherd herds "
+             'meanwhile) or hold (they\n'
+             'hold still, so that the model herder does all the herding).')),
     'herd_topic': Param(
         '/herd/poses',
         'PoseArray of the animals (map frame; NaN = missing)'),
