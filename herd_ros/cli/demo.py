@@ -59,7 +59,7 @@ def add_arguments(p):
                         'cross-validation)')
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--rate', type=float, default=None,
-                   help='bag replay speed-up; default: the bag plays in about two minutes')
+                   help='bag replay speed-up; default: the bag plays in about four minutes')
     p.add_argument('--herding', action='store_true',
                    help='instead: the herding graph live (herd_sim -> controller mode herding '
                         '-> fleet_sim, as launch/herding.launch.py): robots drive simulated '

@@ -22,7 +22,7 @@ def add_arguments(p):
                    help='the model\'s step (s); default: the median fix interval, at least '
                         'the live demo\'s 5 s (/herd/poses ticks at a divisor of it)')
     p.add_argument('--rate', type=float, default=None,
-                   help='replay speed-up; default: the bag plays in about two minutes')
+                   help='replay speed-up; default: the bag plays in about four minutes')
 
 
 def run(args) -> int:
