@@ -13,7 +13,8 @@ odometry, and the ``herder`` gives each robot a target:
   thread it held the node's GIL, and on a slow machine the herd was home before it was
   done), from simulated recordings of as many animals and robots
   (:func:`~herd_ros.herding.model_herder.learn_model_herder`; 10-30 s for 14 animals;
-  Strömbom's shepherd herds meanwhile), then it is called once per new herd
+  Strömbom's shepherd herds meanwhile, or with ``model_warmup: hold`` the robots hold
+  still), then it is called once per new herd
   snapshot (the law's 1 s step) and refits the response online from what it sees.
 
 :func:`~herd_ros.herding.strombom.herder_velocities` turns a target into a velocity of
@@ -66,7 +67,7 @@ class HerdingPolicy:
         self.herder = str(p['herder'])
         self.warmup = str(p['model_warmup'])
         self.model = None                 # the ModelHerder, once learned
-        self._learning = None             # the thread learning it: {'herder' | 'error': ...}
+        self._learning = None             # {'thread' (waits for the process), 'herder' | 'error'}
         self._model_state: dict = {}
         self._planned_update = -1
         self._model_targets = None
