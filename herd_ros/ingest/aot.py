@@ -210,6 +210,28 @@ def load_kernels(kind: str | None = None) -> Kernels | None:
     return Kernels('jit', {name: getattr(collar_kernels, name) for name in EXPORTS})
 
 
+def _release_the_gil():
+    """Make ``numba.pycc`` compile entry points whose Python wrappers release the GIL, as
+    the JIT path's ``nogil=True`` does. pycc builds every export with a default
+    ``numba.core.compiler.Flags`` (``release_gil`` off) and has no option for it, so its
+    module's ``Flags`` is replaced, in the compiling process only, by one with
+    ``release_gil`` on. The kernels touch only the arrays they are given, so threads may
+    call them at once on disjoint collars (:mod:`herd_ros.ingest.collar_threads`)."""
+    import numba.pycc.compiler as pycc_compiler
+    base = pycc_compiler.Flags
+    if getattr(base, 'releases_gil', False):
+        return
+
+    class ReleasingFlags(base):
+        releases_gil = True
+
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.release_gil = True
+
+    pycc_compiler.Flags = ReleasingFlags
+
+
 def compiler(output_dir: str | None = None):
     """A ``numba.pycc.CC`` for the extension: every entry point of :data:`EXPORTS` with its
     signature, and ``source_digest() -> int64``, the :func:`source_digest` of the sources
@@ -218,6 +240,7 @@ def compiler(output_dir: str | None = None):
     with warnings.catch_warnings():         # pycc is "pending deprecation" (no replacement)
         warnings.simplefilter('ignore')
         from numba.pycc import CC
+    _release_the_gil()
     from herd_ros.ingest import collar_kernels
 
     cc = CC(EXTENSION)

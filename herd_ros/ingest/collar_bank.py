@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from herd_ros.ingest import aot
+from herd_ros.ingest import aot, collar_threads
 from herd_ros.ingest.collar_filter import COUNTERS, FilterParams
 from herd_ros.ingest.fix_outcomes import (  # noqa: F401 - the codes, named here too
     ACCEPTED, GATE, MAX_CANDIDATES, NAN, NO_FIX, OUTCOMES, RANGE, REINITIALISED, SPEED,
@@ -234,6 +234,45 @@ class CollarBank:
             out = FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
                            np.empty((m if keep_covariance else 0, 4, 4)),
                            np.empty(m, np.int64))
+        parts = collar_threads.split(np.bincount(collar, minlength=self.n)) if m else []
+        if len(parts) > 1:
+            self._process_parts(parts, collar, stamp, east, north, status, R, out)
+            return out
+        self._process(collar, stamp, east, north, status, R, out)
+        return out
+
+    def _process_parts(self, parts, collar, stamp, east, north, status, R, out):
+        """:meth:`_process` of the fixes of each part (a slice of the collars) in a thread
+        of its own (:mod:`~herd_ros.ingest.collar_threads`), each part's fixes in their
+        order, the results written back to their rows of ``out``."""
+        edges = np.array([sl.start for sl in parts[1:]], np.int64)
+        which = np.searchsorted(edges, collar, side='right')
+        keep_P = out.P.shape[0] > 0
+
+        def part(k):
+            rows = np.flatnonzero(which == k)
+
+            def call():
+                res = FixBatch(np.empty(len(rows), np.int8), np.empty(len(rows)),
+                               np.empty((len(rows), 4)),
+                               np.empty((len(rows) if keep_P else 0, 4, 4)),
+                               np.empty(len(rows), np.int64))
+                self._process(collar[rows], stamp[rows], east[rows], north[rows],
+                              status[rows], R[rows], res)
+                return rows, res
+            return call
+
+        for rows, res in collar_threads.run(part(k) for k in range(len(parts))):
+            out.outcome[rows] = res.outcome
+            out.mahalanobis2[rows] = res.mahalanobis2
+            out.x[rows] = res.x
+            if keep_P:
+                out.P[rows] = res.P
+            out.segment[rows] = res.segment
+
+    def _process(self, collar, stamp, east, north, status, R, out):
+        """One call of the compiled ``process_batch`` (arguments as :meth:`process`,
+        contiguous)."""
         out_code, out_d2, out_x, out_P, out_seg = (out.outcome, out.mahalanobis2, out.x,
                                                    out.P, out.segment)
         p = self.params
@@ -253,4 +292,3 @@ class CollarBank:
             float(p.walk[1]) if p.walk is not None else 0.0, float(p.walk_probability),
             float(p.walk_position_std or 0.0) ** 2,
             out_code, out_d2, out_x, out_P, out_seg)
-        return out

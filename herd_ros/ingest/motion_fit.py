@@ -440,7 +440,7 @@ def _nelder_mead_fits(t, z, r, n, tv_rw, sm_free, floor2, walk, prev, scout: int
     misses (on 200 collars seen at 1 s, the ingest benchmark's herd, the grid's start
     alone picked the IOU for 51 where it is the better model for 95). Returns per model
     (log τ_v, log D, log σ_m², ℓ, the optima (N, 3))."""
-    from herd_ros.ingest import collar_bank
+    from herd_ros.ingest import collar_bank, collar_threads
     N = len(n)
     wa, wt, pw, wr2 = _walk(walk)
     D0, s20 = moment_start(t, z, r, n, floor2)
@@ -472,17 +472,24 @@ def _nelder_mead_fits(t, z, r, n, tv_rw, sm_free, floor2, walk, prev, scout: int
         return out, has
 
     def polish(x0, lo, hi, step, evals, rows=slice(None)):
-        """Nelder-Mead of the collars ``rows`` from x0 (all (N, ·), evals (N,))."""
-        k = len(n[rows])
-        x = np.empty((k, 3))
-        ll = np.empty(k)
-        collar_bank.KERNELS.motion_nelder_mead(
-            np.ascontiguousarray(t[rows]), np.ascontiguousarray(z[rows]),
-            np.ascontiguousarray(r[rows]), np.ascontiguousarray(n[rows], dtype=np.int64),
-            np.ascontiguousarray(x0[rows]), np.ascontiguousarray(lo[rows]),
-            np.ascontiguousarray(hi[rows]), np.ascontiguousarray(step[rows], dtype=float),
-            float(wa), float(wt), float(pw), float(wr2), HUBER_NIS,
-            np.ascontiguousarray(evals[rows], dtype=np.int64), 0.05, x, ll)
+        """Nelder-Mead of the collars ``rows`` from x0 (all (N, ·), evals (N,)), the
+        collars split over threads by their work, fixes × evaluations
+        (:mod:`~herd_ros.ingest.collar_threads`: the same optimum for each collar)."""
+        idx = np.arange(N)[rows]
+        x = np.empty((len(idx), 3))
+        ll = np.empty(len(idx))
+
+        def part(sl):
+            ii = idx[sl]
+            return lambda: collar_bank.KERNELS.motion_nelder_mead(
+                np.ascontiguousarray(t[ii]), np.ascontiguousarray(z[ii]),
+                np.ascontiguousarray(r[ii]), np.ascontiguousarray(n[ii], dtype=np.int64),
+                np.ascontiguousarray(x0[ii]), np.ascontiguousarray(lo[ii]),
+                np.ascontiguousarray(hi[ii]), np.ascontiguousarray(step[ii], dtype=float),
+                float(wa), float(wt), float(pw), float(wr2), HUBER_NIS,
+                np.ascontiguousarray(evals[ii], dtype=np.int64), 0.05, x[sl], ll[sl])
+
+        collar_threads.run(part(sl) for sl in collar_threads.split(n[idx] * evals[idx]))
         return x, ll
 
     def steps(warm, fixed_tv):

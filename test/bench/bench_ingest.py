@@ -4,8 +4,10 @@
    of 50 m, a GPS CSV): ``herd-ros ingest FIXES -o OUT --dt 1`` (the installed console
    script, with the kernels it finds: compiled at install, or numba's) against the plain
    filterpy loop of ``plain_filterpy_loop.py``, each timed from process start to exit,
-   median of 3 (after one ingest run; that first run is reported too). Then the same
-   ingest with ``HERD_ROS_KERNELS=jit`` (numba's cache filled by one run first).
+   median of 3 (after one ingest run; that first run is reported too). The collars are
+   split over the machine's cores (``herd_ros.ingest.collar_threads``); the same ingest on
+   one thread (``HERD_ROS_THREADS=1``) is timed too. Then the same ingest with
+   ``HERD_ROS_KERNELS=jit`` (numba's cache filled by one run first).
 2. **The core alone**: :class:`herd_ros.ingest.collar_bank.CollarBank` on 3.6 M fixes
    (1 000 collars × 1 h at 1 Hz): measurement covariances + the compiled filter loop,
    fixes per second, median of 3.
@@ -61,6 +63,11 @@ def timed(cmd, **env):
     return time.perf_counter() - t0
 
 
+def thread_count():
+    from herd_ros.ingest.collar_threads import thread_count
+    return thread_count()
+
+
 def installed_kernels():
     """Which collar kernels the installed package loads (``aot`` or ``jit``)."""
     code = 'from herd_ros.ingest.collar_bank import KERNELS; print(KERNELS.kind)'
@@ -82,15 +89,20 @@ def whole_processes(repeats):
         first = timed(ingest)
         ours = [timed(ingest) for _ in range(repeats)]
         ours_fixed = [timed(fixed) for _ in range(repeats)]
+        ours_one = [timed(ingest, HERD_ROS_THREADS='1') for _ in range(repeats)]
         base = [timed(plain) for _ in range(repeats)]
         timed(ingest, HERD_ROS_KERNELS='jit')
         jit = [timed(ingest, HERD_ROS_KERNELS='jit') for _ in range(repeats)]
     mo, mb, mj = statistics.median(ours), statistics.median(base), statistics.median(jit)
     mf = statistics.median(ours_fixed)
+    m1 = statistics.median(ours_one)
     print(f'whole processes on {len(fixes)} fixes (200 collars x 30 min at 1 Hz), median of '
           f'{repeats}:')
     print(f'  herd-ros ingest           {mo:7.2f} s  ({len(fixes) / mo:9.0f} fixes/s; '
-          f'kernels: {installed_kernels()}; first run: {first:.2f} s)')
+          f'kernels: {installed_kernels()}, {thread_count()} threads; first run: '
+          f'{first:.2f} s)')
+    print(f'  same, on one thread       {m1:7.2f} s  (HERD_ROS_THREADS=1: {mb / m1:.1f} x the '
+          f'loop)')
     print(f'  same, --motion-model fixed {mf:6.2f} s  ({len(fixes) / mf:9.0f} fixes/s: one '
           f'model for all collars, as the loop)')
     print(f'  plain filterpy loop       {mb:7.2f} s  ({len(fixes) / mb:9.0f} fixes/s)')
