@@ -58,6 +58,9 @@ TAU_MAX = 2 * 86400.0
 COLD_EVALS = (80, 120)
 #: ... and from the same model's previous optimum (a refit, :attr:`MotionFit.optima`)
 WARM_EVALS = (40, 80)
+#: Nelder-Mead stops when its simplex's log-likelihoods agree within this (0.1 or more
+#: leaves a fit short of the best point of a dense grid; τ_v wanders where ℓ is flat in it)
+NM_FTOL = 0.05
 
 
 @dataclass(frozen=True)
@@ -487,7 +490,7 @@ def _nelder_mead_fits(t, z, r, n, tv_rw, sm_free, floor2, walk, prev, scout: int
                 np.ascontiguousarray(x0[ii]), np.ascontiguousarray(lo[ii]),
                 np.ascontiguousarray(hi[ii]), np.ascontiguousarray(step[ii], dtype=float),
                 float(wa), float(wt), float(pw), float(wr2), HUBER_NIS,
-                np.ascontiguousarray(evals[ii], dtype=np.int64), 0.05, x[sl], ll[sl])
+                np.ascontiguousarray(evals[ii], dtype=np.int64), NM_FTOL, x[sl], ll[sl])
 
         collar_threads.run(part(sl) for sl in collar_threads.split(n[idx] * evals[idx]))
         return x, ll
