@@ -225,3 +225,84 @@ def test_gaussian_fir_taps_and_response():
     y = x.copy()
     y[50:] += 100
     np.testing.assert_allclose(gaussian_fir(x)[:50], gaussian_fir(y)[:50])
+
+
+def backlog_arrival(fixes, dt_wall=0.01):
+    """The order a busy node takes a backlog in: one message per collar in turn, whatever
+    its stamp; returns [(wall time, fix)], wall time advancing ``dt_wall`` per message."""
+    queues = {a: [f for f in fixes if f[1] == a] for a in AGENTS}
+    out, k = [], 0
+    while any(queues.values()):
+        for a in AGENTS:
+            if queues[a]:
+                out.append((k * dt_wall, queues[a].pop(0)))
+                k += 1
+    return out
+
+
+def clock_on(arrivals, dt, grace_s):
+    bank = CollarBank(len(AGENTS), PARAMS)
+    clock = BatchHerdClock(AGENTS, dt, PARAMS.stale_after, PARAMS.accel_std,
+                           PARAMS.velocity_tau, grace_s=grace_s)
+    snaps = []
+    for now, (t, a, e, n, status) in arrivals:
+        idx = np.array([AGENTS.index(a)])
+        R = bank.measurement_covariances(np.zeros(1), np.zeros((1, 9)))
+        b = bank.process(idx, np.array([t]), np.array([e]), np.array([n]), np.array([status]),
+                         R)
+        snaps += clock.observe(idx, np.array([t]), b.accepted, b.x, b.P, now=now)
+    return snaps, clock
+
+
+def test_a_collar_whose_fixes_are_still_queued_is_waited_for_with_the_grace(kernels):
+    """a reports every 5 s, b and c every second; taken one message per collar in turn (a
+    backlog worked off), a runs ahead in data time. On data time alone b and c look silent
+    and are NaN; with a grace of wall time they are waited for, and every pose is the
+    offline one."""
+    fixes = []
+    for i, agent in enumerate(AGENTS):
+        step = 5.0 if agent == 'a' else 1.0
+        for t in np.arange(1000.0, 1300.0, step):
+            fixes.append((t, agent, 3.0 * i + 0.01 * (t - 1000.0), 0.0, 0))
+    fixes.sort(key=lambda f: f[0])
+    traj, _ = offline(fixes, 2.5)
+    arrivals = backlog_arrival(fixes)
+    assert max(f[0] for _, f in arrivals[:60] if f[1] == 'a') > 1000 + 2 * PARAMS.stale_after
+    hasty, _ = clock_on(arrivals, 2.5, grace_s=0.0)
+    patient, clock = clock_on(arrivals, 2.5, grace_s=1.0)
+    patient += clock.flush()
+    stale_b = np.array([s.stale[1] for s in hasty])
+    assert stale_b.mean() > 0.5                    # without the grace: b mostly missing
+    np.testing.assert_array_equal([s.time for s in patient], traj.times)
+    np.testing.assert_allclose(np.array([s.positions for s in patient]), traj.positions,
+                               atol=1e-9, equal_nan=True)
+    np.testing.assert_array_equal(np.array([s.stale for s in patient]), traj.meta['stale'])
+    assert not np.array([s.stale for s in patient])[traj.times > 1005, 1:].any()
+
+
+def test_a_collar_gone_quiet_is_silent_a_grace_later(kernels):
+    """b stops at 1010 s; a goes on. The ticks past b's stale_after wait for the grace of
+    wall time, then come with b missing (a poll without new fixes)."""
+    bank = CollarBank(2, PARAMS)
+    clock = BatchHerdClock(['a', 'b'], 1.0, PARAMS.stale_after, PARAMS.accel_std,
+                           PARAMS.velocity_tau, grace_s=1.0)
+    snaps = []
+
+    def send(agent, t, now):
+        idx = np.array([0 if agent == 'a' else 1])
+        R = bank.measurement_covariances(np.zeros(1), np.zeros((1, 9)))
+        b = bank.process(idx, np.array([t]), np.zeros(1), np.zeros(1), np.zeros(1, np.int64),
+                         R)
+        return clock.observe(idx, np.array([t]), b.accepted, b.x, b.P, now=now)
+
+    for k in range(11):
+        snaps += send('a', 1000.0 + k, now=0.01 * k)
+        snaps += send('b', 1000.0 + k, now=0.01 * k)
+    for k in range(11, 60):                          # b quiet; a's fixes arrive quickly
+        snaps += send('a', 1000.0 + k, now=0.1 + 0.001 * k)
+    last = snaps[-1].time
+    assert last <= 1010.0 + PARAMS.stale_after      # waited for b (0.16 s of wall time)
+    later = clock.poll(now=1.2)                      # b sent nothing for more than 1 s
+    assert later and later[-1].time == 1058.0
+    assert later[-1].stale[1] and np.isnan(later[-1].positions[1]).all()
+    assert not later[-1].stale[0]

@@ -79,11 +79,15 @@ class FixStream:
         refit: a :class:`~herd_ros.ingest.motion_refit.RefitConfig`, or None (fixed model).
         datum: (lat, lon, alt) or None for the first valid fix.
         max_stamp_ahead_s, max_clock_jump_s: the two guards (s).
+        silence_grace_s: wall time (s) a collar must also have sent nothing for before the
+            herd clock counts it as silent (:class:`BatchHerdClock`'s ``grace_s``).
     """
 
     def __init__(self, agents, dt: float, params: FilterParams, refit=None, datum=None,
-                 max_stamp_ahead_s: float = math.inf, max_clock_jump_s: float = math.inf):
+                 max_stamp_ahead_s: float = math.inf, max_clock_jump_s: float = math.inf,
+                 silence_grace_s: float = 0.0):
         self.agents, self.dt, self.params = list(agents), float(dt), params
+        self.silence_grace_s = float(silence_grace_s)
         self.max_stamp_ahead_s, self.max_clock_jump_s = max_stamp_ahead_s, max_clock_jump_s
         self.bank = CollarBank(len(self.agents), params)
         self.refitter = MotionRefitter(len(self.agents), refit) if refit is not None else None
@@ -106,7 +110,8 @@ class FixStream:
 
     def _new_clock(self) -> BatchHerdClock:
         return BatchHerdClock(self.agents, self.dt, self.params.stale_after,
-                              self.bank.accel_std, self.bank.velocity_tau)
+                              self.bank.accel_std, self.bank.velocity_tau,
+                              grace_s=self.silence_grace_s)
 
     @property
     def fixes_waiting_for_datum(self) -> int:
@@ -159,10 +164,21 @@ class FixStream:
         if self.datum is None and len(collars):
             collars, fixes = self._hold(collars, fixes, out)
         if len(collars):
-            self._filter(collars, fixes, out)
+            self._filter(collars, fixes, out, now)
         return out
 
-    def _filter(self, idx: np.ndarray, fixes: NavSatFixes, out: StreamOutput):
+    def poll(self, now: float) -> StreamOutput:
+        """No fix since the last :meth:`push`, wall time ``now``: the herd snapshots that
+        waited only for a quiet collar's ``silence_grace_s``."""
+        out = StreamOutput()
+        if self.silence_grace_s > 0:
+            snaps = self.clock.poll(now)
+            out.snapshots.extend(snaps)
+            self.ticks += len(snaps)
+        return out
+
+    def _filter(self, idx: np.ndarray, fixes: NavSatFixes, out: StreamOutput,
+                now: float | None = None):
         stamp = fixes.stamp
         lat0, lon0, alt0 = self.datum
         with np.errstate(invalid='ignore'):
@@ -200,7 +216,8 @@ class FixStream:
             if j > start:
                 sl = slice(start, j)
                 snaps = self.clock.observe(idx[sl], stamp[sl], accepted[sl], batch.x[sl],
-                                           batch.P[sl], None if motion is None else motion[sl])
+                                           batch.P[sl], None if motion is None else motion[sl],
+                                           now=now)
                 out.snapshots.extend(snaps)
                 self.ticks += len(snaps)
             if j < m:

@@ -269,6 +269,14 @@ class HerdClock:
         """End of data: emit every remaining tick up to the latest stamp seen."""
         return self._emit(final=True)
 
+    def poll(self, now: float) -> list[HerdSnapshot]:
+        """No new fix, wall time ``now`` (s): the ticks that waited only for the grace of a
+        collar gone quiet (``grace_s``), now completed."""
+        self.now = max(self.now, float(now))
+        if self._next_k is None:
+            return []
+        return self._emit(final=False)
+
     # -- internals ------------------------------------------------------------------------
     def _ready(self, tick: float) -> bool:
         if tick > self.herd_time:
@@ -357,10 +365,20 @@ class BatchHerdClock:
         accel_std, velocity_tau: the motion model that carries states to the ticks: one for
             all, or per collar ((n,) arrays; the node passes its bank's own arrays, so a
             refitted collar model reaches the clock at once).
+        grace_s: wall time (s) a collar must also have sent nothing for before it counts as
+            silent (0: data time alone decides, as offline). Data time alone cannot tell a
+            silent collar from one whose fixes are still queued: when a busy machine works
+            off a backlog one message per topic in turn, a collar that reports every 5 s
+            runs ahead in data time of those that report every second, and the herd time
+            (the latest stamp) with it; without the grace every other collar looked silent
+            and was NaN in every pose (a replay of the baboons at 30 × real time on a
+            2-core machine: one or two of 19 animals per pose). With it, a collar whose
+            fixes are still arriving is waited for; one that went quiet is silent a
+            ``grace_s`` of wall time later (:meth:`poll`).
     """
 
     def __init__(self, agents, dt: float, stale_after: float, accel_std,
-                 velocity_tau=0.0, depth: int = 8):
+                 velocity_tau=0.0, depth: int = 8, grace_s: float = 0.0):
         if not dt > 0:
             raise ValueError(f'dt must be positive, got {dt!r}')
         self.agents = list(agents)
@@ -370,6 +388,9 @@ class BatchHerdClock:
         self.accel_std = _per_collar(accel_std, n)
         self.velocity_tau = _per_collar(velocity_tau, n)
         self.reported = np.full(n, -np.inf)
+        self.grace_s = float(grace_s)
+        self.received = np.full(n, -np.inf)     # wall time of each collar's latest fix
+        self.now = -math.inf                    # wall time of the latest batch or poll
         self.herd_time = -math.inf
         self._next_k: int | None = None
         self._first_stamp = -math.inf
@@ -384,15 +405,19 @@ class BatchHerdClock:
         """The next tick the clock will publish (s), or None before the first fix."""
         return None if self._next_k is None else self._next_k * self.dt
 
-    def observe(self, collar, stamp, accepted, x, P, motion=None) -> list[HerdSnapshot]:
+    def observe(self, collar, stamp, accepted, x, P, motion=None,
+                now: float | None = None) -> list[HerdSnapshot]:
         """Take note of a batch of fixes (all of them, accepted or not, in arrival order)
         after the bank processed it: ``collar`` (M,), ``stamp`` (M,), ``accepted`` (M,)
         and the states after the accepted ones ``x`` (M, 4), ``P`` (M, 4, 4), with the
         motion model (σ_a, τ_v) that carries each forward, ``motion`` (M, 2) (None: this
-        clock's ``accel_std``, ``velocity_tau`` of the collar). Returns the snapshots
-        completed (oldest first)."""
+        clock's ``accel_std``, ``velocity_tau`` of the collar), received at wall time
+        ``now`` (s; for ``grace_s``). Returns the snapshots completed (oldest first)."""
         collar = np.asarray(collar, dtype=np.int64)
         stamp = np.asarray(stamp, dtype=float)
+        if now is not None:
+            self.now = max(self.now, float(now))
+            self.received[collar] = self.now
         finite = np.isfinite(stamp)
         if not finite.any():
             return []
@@ -421,6 +446,14 @@ class BatchHerdClock:
         """End of data: emit every remaining tick up to the latest stamp seen."""
         return self._emit(final=True)
 
+    def poll(self, now: float) -> list[HerdSnapshot]:
+        """No new fix, wall time ``now`` (s): the ticks that waited only for the grace of a
+        collar gone quiet (``grace_s``), now completed."""
+        self.now = max(self.now, float(now))
+        if self._next_k is None:
+            return []
+        return self._emit(final=False)
+
     @staticmethod
     def warm_up():
         """Load the compiled kernels (from numba's cache: ~0.3 s the first time in a process;
@@ -446,6 +479,8 @@ class BatchHerdClock:
             return False
         silent = (self.herd_time - np.maximum(self.reported, self._first_stamp)
                   > self.stale_after)
+        if self.grace_s > 0:
+            silent &= self.now - self.received >= self.grace_s
         return bool(np.all((self.reported >= tick) | (silent & (tick < self.herd_time))))
 
     _emit = HerdClock._emit     # the same tick loop over this class' _ready and _snapshot

@@ -66,7 +66,8 @@ class GpsIngest(Node):
                              durability=qos_profile_sensor_data.durability)
         FixStream.warm_up()
         self.stream = FixStream(cfg.agents, cfg.dt, cfg.filter_params, cfg.refit, cfg.datum,
-                                cfg.max_stamp_ahead_s, cfg.max_clock_jump_s)
+                                cfg.max_stamp_ahead_s, cfg.max_clock_jump_s,
+                                cfg.silence_grace_s)
         self._frames = collar_frames(cfg.agents)      # frame_id -> collar (fix_topic)
         self._inbox: list[tuple] = []     # (collar index, -1 on fix_topic; serialized fix)
         self._diagnostics_job, self._diagnostics_next = None, 0
@@ -97,6 +98,9 @@ class GpsIngest(Node):
         wall_timer(self, cfg.diagnostics_period_s, self.publish_diagnostics)
         if cfg.batch_period_s > 0:
             wall_timer(self, cfg.batch_period_s, self.drain)
+        if cfg.silence_grace_s > 0:
+            # the ticks that wait only for a quiet collar's grace, when no fix comes
+            wall_timer(self, max(0.05, cfg.silence_grace_s / 4), self.poll_clock)
         self.executor_kind = cfg.executor        # run_node builds it
         describe_remaining_parameters(self, 'not a gps_ingest parameter (ignored)')
         LiveParameters(self, lambda name, value: (number_problem(value, strict=False)
@@ -116,6 +120,15 @@ class GpsIngest(Node):
         self._inbox.append((collar, data))
         if self.cfg.batch_period_s == 0 or len(self._inbox) >= 100_000:
             self.drain()
+
+    def poll_clock(self):
+        """No fix for a while: publish the herd snapshots that waited only for the
+        ``silence_grace_s`` of a collar gone quiet (the fixes queued go first)."""
+        if self._inbox:
+            return
+        out = self.stream.poll(time.time())
+        if out.snapshots:
+            self._publish(out)
 
     def on_shutdown(self):
         """Stop signal: filter and publish the fixes still waiting for their batch."""

@@ -302,6 +302,25 @@ PARAMS = {
              'rejected (reason\n'
              '`future`): one wrong stamp must not drag the herd clock into the '
              'future.')),
+    'silence_grace_s': Param(
+        1.0,
+        ('a collar counts as silent for the herd clock only after sending nothing for '
+         'this long (s, wall time); 0 = data time alone'),
+        range=(0.0, 3600.0),
+        doc=('\n'
+             'The herd clock publishes a tick once every collar has reported at or '
+             'after it, or has\n'
+             'been silent for more than stale_after of data time. Data time alone '
+             'cannot tell a\n'
+             'silent collar from one whose fixes are still queued: a busy machine '
+             'working off a\n'
+             'backlog takes one message per topic in turn, so a collar that reports '
+             'every 5 s runs\n'
+             'ahead of those that report every second, and every other collar '
+             'looked silent (NaN)\n'
+             'in every pose. A collar must also have sent nothing for this many '
+             'seconds of wall\n'
+             'time: one whose fixes are still arriving is waited for.')),
     'max_clock_jump_s': Param(
         3600.0,
         ('a forward jump of data time larger than this (s) restarts the herd '
@@ -397,7 +416,8 @@ class GpsIngestConfig:
                                  f'lon, alt] (finite degrees within ±90/±180, metres), got '
                                  f'{list(p["datum"])!r}') from None
         for name in ('dt', 'diagnostics_period_s', 'max_stamp_ahead_s', 'max_clock_jump_s',
-                     'batch_period_s', 'diagnostics_max_collars', 'executor', 'motion_model'):
+                     'batch_period_s', 'diagnostics_max_collars', 'executor', 'motion_model',
+                     'silence_grace_s'):
             setattr(self, name, p[name])
         filt = {name: p[name] for name in FILTER_FIELDS}
         filt['initial_velocity_std'] = filt['initial_velocity_std'] or None
