@@ -71,3 +71,23 @@ def test_a_jump_of_data_time_restarts_the_clock():
 def test_collar_frames_name_each_collar_three_ways():
     frames = collar_frames(['cow_1', 'cow_2'])
     assert frames['cow_2'] == frames['cow_2_gps'] == frames['cow_2/gps'] == 1
+
+
+def test_a_quiet_collar_holds_the_clock_for_the_grace_then_a_poll_moves_it():
+    s = stream(datum=(LAT0, LON0, 0.0), silence_grace_s=2.0)
+    out = s.push(np.array([0, 1]), fixes([0.0, 0.0]), 100.0)
+    ticks = []
+    for k in range(1, 60):                          # b quiet; a's fixes within 1 s of wall
+        ticks += [snap.time for snap in s.push(np.array([0]), fixes([float(k)]),
+                                               100.0 + 0.01 * k).snapshots]
+    assert max(ticks, default=0.0) < 1.0 + 30.0    # held: b might still be on its way
+    assert not s.poll(101.5).snapshots              # 0.9 s since b's fix: still waiting
+    late = s.poll(102.1).snapshots                  # 2.1 s: b is silent
+    assert late and late[-1].time == 58.0 and math.isnan(late[-1].positions[1, 0])
+    assert s.ticks == len(out.snapshots) + len(ticks) + len(late)
+    # without the grace, data time alone: b is silent as soon as it is 30 s behind
+    s0 = stream(datum=(LAT0, LON0, 0.0))
+    s0.push(np.array([0, 1]), fixes([0.0, 0.0]), 100.0)
+    got = [snap.time for k in range(1, 60)
+           for snap in s0.push(np.array([0]), fixes([float(k)]), 100.0).snapshots]
+    assert got[-1] == 58.0 and not s0.poll(200.0).snapshots
