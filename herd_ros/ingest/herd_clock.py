@@ -269,14 +269,6 @@ class HerdClock:
         """End of data: emit every remaining tick up to the latest stamp seen."""
         return self._emit(final=True)
 
-    def poll(self, now: float) -> list[HerdSnapshot]:
-        """No new fix, wall time ``now`` (s): the ticks that waited only for the grace of a
-        collar gone quiet (``grace_s``), now completed."""
-        self.now = max(self.now, float(now))
-        if self._next_k is None:
-            return []
-        return self._emit(final=False)
-
     # -- internals ------------------------------------------------------------------------
     def _ready(self, tick: float) -> bool:
         if tick > self.herd_time:
