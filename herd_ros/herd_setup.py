@@ -49,11 +49,11 @@ from herd_ros.estimation.model_selection import PAIRWISE_MAX_AGENTS, typical_spa
 FIELD_CELLS = 12
 #: Herd-clock steps of data an animal needs per field cell (20 samples per field parameter).
 SAMPLES_PER_FIELD_CELL = 40
-#: Replay so that the bag takes about this long (s of wall time). Two minutes (rate 30 for
-#: the baboons' hour) saturated the graph on a 2-core machine about twice as slow in
-#: Python as the one it was chosen on: most collars went stale (a median of 1-2 of the 19
-#: animals in a herd pose, 394 one-step predictions scored, 8 of 19 robots passing); at four
-#: minutes (rate 15) on that machine: 19 of 19, 6 840 predictions, the robots as before.
+#: Replay so that the bag takes about this long (s of wall time). At two minutes (rate 30
+#: for the baboons' hour) a 2-core machine about twice as slow in Python lost most collars
+#: to staleness (a median of 1-2 of the 19 animals in a herd pose) until gps_ingest's
+#: ``silence_grace_s``; with it all 19 are there at rate 30 too, but the controller and the
+#: fleet lag (robots' speed +18 %, 16 of 19 passing), against 18-19 of 19 at four minutes.
 TARGET_WALL_S = 240.0
 #: Shortest herd clock of the live demo (s). The composed graph replays an hour in two
 #: minutes in one Python process; with 19 baboons on a 1 s clock it saturated a core and

@@ -234,7 +234,9 @@ class CollarBank:
             out = FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
                            np.empty((m if keep_covariance else 0, 4, 4)),
                            np.empty(m, np.int64))
-        parts = collar_threads.split(np.bincount(collar, minlength=self.n)) if m else []
+        # a live batch (a few fixes) is never split: no count per collar for it
+        parts = (collar_threads.split(np.bincount(collar, minlength=self.n))
+                 if m >= collar_threads.MIN_WORK else [])
         if len(parts) > 1:
             self._process_parts(parts, collar, stamp, east, north, status, R, out)
             return out

@@ -57,10 +57,11 @@ def split(work, parts: int | None = None) -> list[slice]:
     below :data:`MIN_WORK` or there is one collar)."""
     work = np.maximum(np.asarray(work, dtype=float), 0.0)
     n = len(work)
-    parts = thread_count() if parts is None else int(parts)
     total = float(work.sum())
-    parts = min(parts, n)
-    if parts <= 1 or total < MIN_WORK:
+    if n <= 1 or total < MIN_WORK:                  # before thread_count(): a hot path
+        return [slice(0, n)]
+    parts = min(thread_count() if parts is None else int(parts), n)
+    if parts <= 1:
         return [slice(0, n)]
     edges = np.searchsorted(np.cumsum(work), total * np.arange(1, parts) / parts,
                             side='left') + 1

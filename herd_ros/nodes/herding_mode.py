@@ -111,8 +111,8 @@ class HerdingPolicy:
                 self.targets = targets[0]
                 out[present] = herder_velocities(dogs[None], targets, P[None], self.sheep,
                                                  self.shepherd, self.rng, state.period)[0]
-        learning = ((' (Strömbom\'s shepherd while the model herder learns the response)'
-                     if self.warmup == 'strombom' else '') if self._warming_up() else '')
+        learning = (' (Strömbom\'s shepherd while the model herder learns the response)'
+                    if self._warming_up() and self.warmup == 'strombom' else '')
         self.status = {'home': 'the herd is inside the goal: holding still',
                        'holding': 'holding still while the model herder learns the response',
                        'driving': 'driving the herd to the goal',
