@@ -237,17 +237,7 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     finally:
         estimator = next((n for n in nodes if isinstance(n, Estimator)), None)
         controller = next((n for n in nodes if isinstance(n, Controller)), None)
-        stopping.set()
-        for n in nodes:
-            hook = getattr(n, 'on_shutdown', None)
-            if hook is not None:
-                hook()
-        executor.shutdown(timeout_sec=2.0)
-        if spinner is not None:
-            # destroying the nodes under a spin that has not returned yet raises in it
-            spinner.join(timeout=10.0)
-        for n in nodes:
-            n.destroy_node()
+        stop_graph(executor, spinner, nodes, stopping)
         rclpy.try_shutdown()
     model_path = out / 'learned_model.yaml'
     live_skill = None
@@ -308,6 +298,26 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     return write_demo_report(out, cows, robots_traj, agents, param_times, thetas, fence, facts,
                              law=setup.law, profile_size=profile_size,
                              robots_at_fixes=at_fixes)
+
+
+def stop_graph(executor, spinner, nodes, stopping):
+    """End the run: stop the spin, wait for its thread, then each node's ``on_shutdown``
+    (the ingest publishes the fixes still waiting, the estimator saves), then destroy them.
+
+    The spin stops first: a hook run while the spin thread is still inside a callback of the
+    same node races it (the ingest's diagnostics generator was once advanced from both
+    threads at once, "generator already executing", and the demo died at its last step)."""
+    stopping.set()
+    executor.shutdown(timeout_sec=10.0)
+    if spinner is not None:
+        # destroying the nodes under a spin that has not returned yet raises in it
+        spinner.join(timeout=10.0)
+    for n in nodes:
+        hook = getattr(n, 'on_shutdown', None)
+        if hook is not None:
+            hook()
+    for n in nodes:
+        n.destroy_node()
 
 
 def _spin(executor, stopping=None):
