@@ -289,6 +289,28 @@ def test_live_model_from_the_estimator_topic(graph):
     assert cmds['r2'][-1][1].linear.x > 0.05
 
 
+def test_the_fleet_starts_together_once_every_robot_has_reported(graph):
+    # the same live model and robots as above, but r2's odometry comes 3 s after r1's:
+    # r1 alone is not driven (a swarm law of the robots heard so far would be another law)
+    g, ear = graph
+    diags = ear.record(DiagnosticArray, '/diagnostics')
+    cmds, model, theta = topic_controller(g, ear, 'max_speed:=0.8', 'startup_wait_s:=60.0')
+    publish_structure(ear, model)
+    from herd_ros.nodes.ros_common import tensor_message as matrix
+    params = ear.node.create_publisher(Float64MultiArray, '/herd/model/params', 10)
+    ear.node.create_timer(0.3, lambda: params.publish(matrix(theta, ('agent', 'param'))))
+    hold_robots(ear, {'r1': (-1.0, 0.0)})
+    assert ear.spin(15.0, until=lambda: len(cmds['r1']) > 5)
+    ear.spin(3.0)
+    assert all(m.linear.x == m.linear.y == 0.0 for r in cmds for _, m in cmds[r]), \
+        'a robot was driven before the whole fleet had reported'
+    text = ' '.join(s.message for _, d in diags for s in d.status)
+    assert 'waiting for the odometry of r2' in text
+    hold_robots(ear, {'r2': (1.0, 0.0)})              # 2 m apart: they repel at once
+    assert ear.spin(10.0, until=lambda: cmds['r1'][-1][1].linear.x < -0.05
+                    and cmds['r2'][-1][1].linear.x > 0.05)
+
+
 def test_live_noise_regimes_from_the_estimator_topic(graph):
     # the estimator's stop-and-go noise (/herd/model/noise_regimes, latched) reaches the
     # robots' law: the controller says which noise its robots draw

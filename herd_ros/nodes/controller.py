@@ -7,7 +7,9 @@ for its own robots only, at ``rate_hz`` on the node clock, and ``/diagnostics``.
 Each tick: odometry -> :class:`FleetObservation` -> the mode's policy ``command(state)``
 (world velocities) -> :func:`herd_ros.control.safety.safe_velocity` (speed, obstacles,
 fence) -> body-frame Twist (:mod:`herd_ros.control.kinematics`). A robot whose odometry is
-older than ``odom_timeout_s`` (or never came) gets an explicit zero Twist on that tick.
+older than ``odom_timeout_s`` (or never came) gets an explicit zero Twist on that tick. No
+robot is driven before every owned robot has reported once, or ``startup_wait_s`` after the
+first did (:class:`~herd_ros.control.fleet_start.StartGate`).
 
 Modes are a seam: :data:`POLICIES` maps a mode name to a class with
 ``from_node(node) -> policy`` (declares and reads its own parameters) and
@@ -28,6 +30,7 @@ from rclpy.node import Node
 
 from herd_ros.control import kinematics as kin
 from herd_ros.control.fleet_observation import FleetObservation
+from herd_ros.control.fleet_start import StartGate
 from herd_ros.control.safety import Fence, Obstacles, safe_velocity, stale_mask
 from herd_ros.errors import HerdInputError
 from herd_ros.model.model_file import check_agent_id
@@ -75,6 +78,7 @@ class Controller(Node):
                          for r in self.robots]
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.policy = POLICIES[self.mode].from_node(self)
+        self.start_gate = StartGate(self.startup_wait_s)
         self._last_diag = -np.inf
         self.timer = self.create_timer(self.period, self.tick)
         describe_remaining_parameters(self, {
@@ -100,7 +104,7 @@ class Controller(Node):
         # types, ranges and choices: checked against the table (herd_ros/params/controller.py)
         for name in ('mode', 'kinematics', 'rate_hz', 'max_speed', 'heading_gain',
                      'max_yaw_rate', 'odom_timeout_s', 'diagnostics_period_s',
-                     'safety_horizon_s', 'fence_margin'):
+                     'safety_horizon_s', 'fence_margin', 'startup_wait_s'):
             setattr(self, name, p[name])
         self.period = 1.0 / self.rate_hz
         self.horizon = max(self.safety_horizon_s, self.period)
@@ -136,6 +140,15 @@ class Controller(Node):
     def tick(self):
         """One control period: the mode's velocities through the safety layer to Twists."""
         now = self.now_s()
+        if not self.start_gate.open:
+            if not self.start_gate.update(self.odom_time, self.owned, now):
+                self._hold_fleet(now)
+                return
+            missing = [self.all_robots[k] for k in self.start_gate.missing_at_start]
+            if missing:
+                self.get_logger().warn(f'starting without {", ".join(missing)}: no odometry '
+                                       f'within startup_wait_s ({self.startup_wait_s:g} s) '
+                                       f'of the first robot\'s')
         active = ~stale_mask(self.odom_time, now, self.odom_timeout_s)
         last = np.where(self.owned[:, None], self.last_command, self.velocity)
         state = FleetObservation(list(self.all_robots), self.owned, self.positions.copy(),
@@ -164,6 +177,20 @@ class Controller(Node):
         if now - self._last_diag >= self.diagnostics_period_s - 1e-9:
             self._last_diag = now
             self.publish_diagnostics(active, world)
+
+    def _hold_fleet(self, now: float):
+        """Before the start (:class:`StartGate`): a zero Twist to every owned robot, and the
+        diagnostics say whose odometry is awaited."""
+        for pub in self.cmd_pubs:
+            pub.publish(Twist())
+        if now - self._last_diag >= self.diagnostics_period_s - 1e-9:
+            self._last_diag = now
+            waiting = [r for k, r in enumerate(self.all_robots)
+                       if self.owned[k] and not np.isfinite(self.odom_time[k])]
+            self.diag_pub.publish(diagnostic_array(self, [diagnostic_status(
+                'controller', WARN, f'mode {self.mode}: {getattr(self.policy, "status", "")}; '
+                f'waiting for the odometry of {", ".join(waiting)} before driving the fleet',
+                {'robots': len(self.robots), 'waiting_for': len(waiting)})]))
 
     def to_twist(self, world: np.ndarray, rows: np.ndarray):
         """Body-frame commands for ``world`` velocities of robots ``rows`` (a unicycle drives

@@ -133,6 +133,18 @@ COMMON = {
              'receipt) gets an\n'
              'explicit zero Twist on the next tick and exerts no force on the '
              'others.')),
+    'startup_wait_s': Param(
+        5.0,
+        'at start, wait this long (s) for every robot to report before driving any',
+        range=(0.0, 1000000.0),
+        doc=('\n'
+             'The fleet starts together: no robot is driven (zero Twists) until every '
+             'robot in\n'
+             'robots has reported its odometry once, or this long (s, node clock) after '
+             'the first\n'
+             'did; a robot heard later joins then (herd_ros/control/fleet_start.py). 0: '
+             'start with\n'
+             'the first robot heard.')),
     'diagnostics_period_s': Param(
         1.0,
         'period (s) of /diagnostics',
