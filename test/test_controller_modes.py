@@ -178,8 +178,8 @@ def test_imitation_amd_follows_the_offline_simulator(graph, tmp_path):
     assert ear.spin(15.0, until=lambda: len(poses_log) > 0), 'no fleet_sim poses'
     ctl = start('controller', '--params-file', str(path), '-p', 'mode:=imitation',
                 '-p', flag('robots', robots), '-p', 'rate_hz:=20.0', '-p', 'max_speed:=7.0',
-                '-p', 'odom_timeout_s:=0.5')
-    assert ear.spin(20.0, until=lambda: first_command), 'the controller never commanded motion'
+                '-p', 'odom_timeout_s:=0.5', '-p', 'startup_wait_s:=30.0')
+    assert ear.spin(40.0, until=lambda: first_command), 'the controller never commanded motion'
     ear.spin(6.5)
     assert ctl.poll() is None, output('controller')
 
