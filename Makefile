@@ -69,10 +69,10 @@ lint: install-self
 
 # two workers (this machine has two cores; each worker keeps its own band of DDS domains,
 # test/conftest.py); --dist loadfile keeps a file's tests, and its module fixtures (the
-# colcon build, the demo runs), on one worker
+# colcon build, the demo runs), on one worker; the 15 slowest tests are listed at the end
 test: install-self
 	$(LINT)
-	$(PY) -m pytest -q -ra -n 2 --dist loadfile
+	$(PY) -m pytest -q -ra -n 2 --dist loadfile --durations=15
 
 docs: install-self
 	$(PY) -m sphinx -W --keep-going -q -b html doc doc/_build/html
