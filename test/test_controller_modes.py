@@ -163,6 +163,7 @@ def test_imitation_amd_follows_the_offline_simulator(graph, tmp_path):
     poses = np.column_stack([p0, np.zeros(n)]).ravel().round(4).tolist()
     p0 = np.asarray(poses).reshape(n, 3)[:, :2]
     poses_log = ear.record(PoseArray, '/fleet/poses', stamped=False)
+    diags = ear.record(DiagnosticArray, '/diagnostics', stamped=False)
     first_command = []                    # set once a non-zero command is heard (a gate)
 
     command_times = []                    # wall times the commands were heard (for a failure)
@@ -206,8 +207,15 @@ def test_imitation_amd_follows_the_offline_simulator(graph, tmp_path):
           f'(median {np.median(gap):.3f}) over 6 s')
     assert change > 0.2, 'the swarm barely changed its spread: a weak test'
     # a failure says whether the machine starved the loop: the longest wait between two
-    # fleet_sim frames (50 Hz) and between two commands heard (20 Hz × 8 robots)
+    # fleet_sim frames (50 Hz), between two commands heard (20 Hz × 8 robots), and the
+    # controller's own count of ticks at which a robot's odometry was stale (left out)
     heard = np.diff(np.asarray(command_times))
+    stale = {s.name.split(': ')[-1]: int(kv.value) for m in diags for s in m.status
+             if s.name.startswith('controller: ') for kv in s.values if kv.key == 'stale_ticks'}
+    np.savez(tmp_path / 'imitation_run.npz', t=t, xy=xy, offline=offline,
+             command_times=np.asarray(command_times))
     assert gap.max() < 0.2, (f'worst at t = {t[keep][np.argmax(gap)]:.2f} s; longest gap '
                              f'between fleet_sim frames {np.diff(t[keep]).max():.3f} s, '
-                             f'between commands {heard.max() if len(heard) else 0.0:.3f} s')
+                             f'between commands {heard.max() if len(heard) else 0.0:.3f} s; '
+                             f'stale ticks {stale}; positions at 6 s '
+                             f'{xy[keep][-1].round(2).tolist()} ({tmp_path})')

@@ -38,7 +38,7 @@ from herd_ros.nodes.flocking_mode import FlockingPolicy
 from herd_ros.nodes.herd_model_mode import HerdModelPolicy
 from herd_ros.nodes.herding_mode import HerdingPolicy
 from herd_ros.nodes.imitation_mode import ImitationPolicyMode
-from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, ParameterError,
+from herd_ros.nodes.ros_common import (LATEST_ONLY, OK, WARN, LiveParameters, ParameterError,
                                        declare_parameters, describe_remaining_parameters,
                                        diagnostic_array, diagnostic_status, exit_process,
                                        run_node)
@@ -73,7 +73,7 @@ class Controller(Node):
                                    'stale_ticks')}
         for k, robot in enumerate(self.all_robots):
             self.create_subscription(Odometry, f'/fleet/{robot}/odom',
-                                     lambda msg, k=k: self.on_odom(k, msg), 10)
+                                     lambda msg, k=k: self.on_odom(k, msg), LATEST_ONLY)
         self.cmd_pubs = [self.create_publisher(Twist, f'/fleet/{r}/cmd_vel', 10)
                          for r in self.robots]
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)

@@ -21,7 +21,8 @@ from rclpy.time import Time
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from herd_ros.ingest.geodesy import enu_to_geodetic
-from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, declare_parameters,
+from herd_ros.nodes.ros_common import (LATEST_ONLY, OK, WARN, LiveParameters,
+                                       declare_parameters,
                                        describe_remaining_parameters, diagnostic_array,
                                        diagnostic_status, exit_process, run_node)
 from herd_ros.params.fleet_sim import PARAMS as DEFAULTS, FleetSimConfig
@@ -49,7 +50,7 @@ class FleetSim(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         for k, r in enumerate(cfg.robots):
             self.create_subscription(Twist, f'/fleet/{r}/cmd_vel',
-                                     lambda msg, k=k: self.on_cmd(k, msg), 10)
+                                     lambda msg, k=k: self.on_cmd(k, msg), LATEST_ONLY)
         self._last_fix = -np.inf
         self._last_diag = -np.inf
         self.create_timer(1.0 / cfg.rate_hz, self.step)
