@@ -26,10 +26,9 @@ if _WORKERS > 1:
                                       + (int(os.environ['ROS_DOMAIN_ID']) % _BAND))
 os.environ.setdefault('MPLBACKEND', 'Agg')
 # The collar kernels use every core by default (herd_ros.ingest.collar_threads). Under
-# xdist the workers already fill the cores: a worker's ingest on two threads starved the
-# other worker's real-time graph (a 20 Hz controller missing its ticks while a robot kept
-# its last 7 m/s command). One thread per worker process unless the run says otherwise;
-# test_collar_threads sets its own counts.
+# xdist the workers already fill the cores, and a worker's ingest on all of them takes CPU
+# from the other worker's real-time graphs. One thread per worker process unless the run
+# says otherwise; test_collar_threads sets its own counts.
 if _WORKERS > 1:
     os.environ.setdefault('HERD_ROS_THREADS', '1')
 # Nodes write their files (estimator checkpoint and model) under $ROS_HOME/herd_ros: the
