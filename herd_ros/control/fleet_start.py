@@ -31,12 +31,12 @@ class StartGate:
         (node time, s; NaN = never), ``owned``: the robots this controller drives."""
         if self.open:
             return True
-        heard = np.isfinite(np.asarray(heard_at, dtype=float)) & np.asarray(owned, bool)
+        owned = np.asarray(owned, bool)
+        heard = np.isfinite(np.asarray(heard_at, dtype=float)) & owned
         if not heard.any():
             return False
         if self.first_heard is None:
             self.first_heard = float(now)
-        owned = np.asarray(owned, bool)
         if heard[owned].all() or now - self.first_heard >= self.wait_s:
             self.open = True
             self.missing_at_start = np.flatnonzero(owned & ~heard).tolist()
