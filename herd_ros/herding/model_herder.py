@@ -126,31 +126,46 @@ class LearnedResponse:
         x = np.minimum(d / self.grid[-1], 2.0) * (G - 1)
         i0 = np.minimum(x.astype(np.int64), G - 2)
         w = x - i0
-        flat = i0.reshape(len(table), -1)
-        lo = np.take_along_axis(table, flat, axis=1).reshape(d.shape)
-        hi = np.take_along_axis(table, flat + 1, axis=1).reshape(d.shape)
+        # row k of the tables starts at k·G of the flattened tables
+        at = i0 + (np.arange(len(table)) * G).reshape((-1,) + (1,) * (d.ndim - 1))
+        flat = np.ascontiguousarray(table).ravel()
+        lo, hi = flat[at], flat[at + 1]
         return np.where(x <= G - 1, lo + w * (hi - lo), 0.0)
 
-    def velocity(self, P: np.ndarray, U: np.ndarray, dogs: np.ndarray, theta=None):
+    def velocity(self, P: np.ndarray, U: np.ndarray, dogs: np.ndarray, theta=None,
+                 tables=None):
         """The law's next velocity ā U + Σ_j F̄(d_ij) e_ij + Σ_k H̄(d_ik) e_ik for K herds,
         the forces at ``P`` (K, N, 2) and the dogs ``dogs`` (K, D, 2); ``theta`` (K, p):
-        each herd's own parameters (default: the fitted θ for all)."""
-        a, pooled_tab, dog_tab = self.tables(theta)
+        each herd's own parameters (default: the fitted θ for all); ``tables``: the
+        :meth:`tables` of ``theta``, when already made (a rollout makes them once)."""
+        a, pooled_tab, dog_tab = self.tables(theta) if tables is None else tables
         K = P.shape[0]
         if len(a) == 1 and K > 1:
             a = np.repeat(a, K)
             pooled_tab, dog_tab = np.repeat(pooled_tab, K, 0), np.repeat(dog_tab, K, 0)
-        off = P[:, None, :, :] - P[:, :, None, :]                  # [k, i, j] = p_j − p_i
-        d = np.sqrt((off ** 2).sum(-1))
-        n = P.shape[1]
-        d[:, np.arange(n), np.arange(n)] = np.inf
-        f = self._lookup(pooled_tab, d)
-        pooled = (f[..., None] * off / np.where(np.isfinite(d), d, 1.0)[..., None]).sum(2)
-        to = dogs[:, None, :, :] - P[:, :, None, :]                 # (K, N, D, 2)
-        dd = np.sqrt((to ** 2).sum(-1))
-        h = self._lookup(dog_tab, dd)
-        dog = (h[..., None] * to / np.maximum(dd, 1e-9)[..., None]).sum(2)
+        px, py = P[..., 0], P[..., 1]
+        pooled = self._pull(pooled_tab, px[:, None, :] - px[:, :, None],
+                            py[:, None, :] - py[:, :, None], diagonal=True)
+        dog = self._pull(dog_tab, dogs[:, None, :, 0] - px[:, :, None],
+                         dogs[:, None, :, 1] - py[:, :, None])
         return a[:, None, None] * U + pooled + dog
+
+    def _pull(self, table, ox, oy, diagonal=False):
+        """Σ_j table(d_ij) e_ij over the offsets [k, i, j] = q_j − p_i (``ox``, ``oy``: each
+        (K, N, M)); with ``diagonal`` the j = i terms are left out (an animal and itself).
+        Per axis, the sum over j runs in order, as a reduction over a middle axis does."""
+        d = np.sqrt(ox ** 2 + oy ** 2)
+        if diagonal:
+            n = ox.shape[1]
+            d[:, np.arange(n), np.arange(n)] = np.inf
+            h = self._lookup(table, d)
+            d = np.where(np.isfinite(d), d, 1.0)
+        else:
+            h = self._lookup(table, d)
+            d = np.maximum(d, 1e-9)
+        # [k, j, i]: the sum over j along axis 1
+        return np.stack([(h * ox / d).transpose(0, 2, 1).copy().sum(1),
+                         (h * oy / d).transpose(0, 2, 1).copy().sum(1)], axis=-1)
 
     def step(self, P: np.ndarray, U: np.ndarray, dogs: np.ndarray, theta=None):
         """One step of the law for K herds: (P + U', U'), U' = :meth:`velocity` at P."""
@@ -285,9 +300,9 @@ class ModelHerder:
 
         Pk, Uk = each(P), each(P - last[:, :N])
         dk, d_back = each(dogs), each(last[:, N:])
-        theta = each(theta)
+        tables = tuple(each(t) for t in self.response.tables(theta))   # θ's, made once
         for _ in range(self.horizon):
-            Uk = self.response.velocity(Pk - Uk, Uk, d_back, theta)
+            Uk = self.response.velocity(Pk - Uk, Uk, d_back, tables=tables)
             Pk = Pk + Uk
             gap = targets - dk
             dist = np.sqrt((gap ** 2).sum(-1, keepdims=True))
