@@ -31,6 +31,28 @@ def test_small_steps_keep_the_small_step_gain():
     assert spread_factor(1e-6, 0.3) == pytest.approx(1 / (2 * 0.7 * 1e-6), rel=1e-5)
 
 
+def test_the_gain_solves_g1_to_rounding_from_tiny_to_the_stability_edge():
+    """The root is exact in relative terms however small: f(c) equals the spread asked for
+    (σ²/(Δt² q κ) of (S2)) to 1e-12, for small-step gains from 1e-12 to near the edge,
+    dampings from −0.9 to 0.99 and couplings 1 to 3 (a bisection on (0, best] with 60 halvings
+    was off by 1e-7 at c = 1e-12)."""
+    rng = np.random.default_rng(3)
+    c0 = 10.0 ** rng.uniform(-12, -0.5, 400)
+    a = rng.uniform(-0.9, 0.99, 400)
+    for kappa in (1.0, 1.5, 3.0):
+        c = loop_gain(c0, a, kappa) * kappa
+        f = spread_factor(c, a)
+        target = 1.0 / (2.0 * (1.0 - a) * kappa * c0)
+        reached = f <= target * (1 + 1e-9)
+        assert reached.sum() > 300                     # most are inside the stable range
+        np.testing.assert_allclose(f[reached], target[reached], rtol=1e-12)
+        # the rest sit at the minimum of f: a little more or less gain widens the spread
+        rest = ~reached
+        assert (spread_factor(c[rest] * 0.99, a[rest]) > f[rest]).all()
+        assert (spread_factor(np.minimum(c[rest] * 1.01, 0.999 * (1 - a[rest])),
+                              a[rest]) > f[rest]).all()
+
+
 def test_the_loop_holds_the_spread_the_range_asks_for():
     a, dt, q, sigma2 = 0.3, 10.0, 0.02, 10.0
     c0 = dt * dt * q / (2 * (1 - a) * sigma2)            # (S2): K Δt

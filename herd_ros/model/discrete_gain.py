@@ -31,8 +31,9 @@ from __future__ import annotations
 
 import numpy as np
 
-#: bisection steps of the root of (G1) (the interval halves each step)
-_BISECTIONS = 60
+#: the most steps to the root of (G1) (a bisection halves the bracket; Newton's steps
+#: converge in a few)
+_STEPS = 60
 #: points of the grid that brackets the minimum of f
 _GRID = 512
 
@@ -64,16 +65,45 @@ def loop_gain(c_small, damping, coupling=1.0):
     grid = edge[:, None] * (np.arange(1, _GRID) / _GRID)[None]
     f = spread_factor(grid, a[:, None])
     best = grid[np.arange(len(a)), np.argmin(f, axis=1)]      # the minimum of f
-    lo, hi = np.zeros_like(best), best.copy()
-    for _ in range(_BISECTIONS):                               # f falls on (0, best]
-        mid = 0.5 * (lo + hi)
-        above = spread_factor(mid, a) > target
-        lo = np.where(above, mid, lo)
-        hi = np.where(above, hi, mid)
     reachable = spread_factor(best, a) <= target
-    c_offset = np.where(reachable, hi, best)
+    c_offset = best.copy()
+    if reachable.any():
+        r = reachable
+        c_offset[r] = _falling_root(a[r], edge[r], best[r], target[r])
     out[ok] = c_offset / kappa
     return out
+
+
+def _falling_root(a, edge, best, target):
+    """The root of f(c) = ``target`` on (0, ``best``], where (G1)'s f falls (convex there)
+    from ∞ to its minimum at ``best`` (f(best) ≤ ``target``): Newton's method kept inside a
+    bracket that shrinks every step, a bisection wherever a Newton step would leave it
+    (Press et al., *Numerical Recipes*, 3rd ed., §9.4, ``rtsafe``), to a few ulps. It
+    starts from the small-step root 1/(2(1 − a) target) of (S2), where f is above the
+    target (f(c) > 1/(2(1 − a) c) for every c in (0, 1 − a)), so Newton's steps climb to
+    the root from below."""
+    one_a, two_a = 1.0 + a, 2.0 + 2.0 * a
+    lo, hi = np.zeros_like(best), best.copy()
+    small = 1.0 / (2.0 * edge * target)
+    c = np.where(small < best, small, 0.5 * best)
+    with np.errstate(divide='ignore', invalid='ignore'):     # f' = 0 at the minimum
+        for _ in range(_STEPS):
+            # f = N / D, f' = (D − N D') / D², N = 1 + a + c, D = (1 − a − c) c (2 + 2a + c)
+            n, left, right = one_a + c, edge - c, two_a + c
+            d = left * c * right
+            f = n / d
+            slope = (d - n * (left * right - c * right + left * c)) / (d * d)
+            above = f > target
+            lo = np.where(above, c, lo)
+            hi = np.where(above, hi, c)
+            newton = c - (f - target) / slope
+            inside = np.isfinite(newton) & (newton >= lo) & (newton <= hi)
+            step = np.where(inside, newton, 0.5 * (lo + hi))
+            done = np.abs(step - c) <= 4.0 * np.spacing(c)
+            c = step
+            if done.all():
+                break
+    return c
 
 
 def discrete_gain(gain, damping, dt: float, coupling=1.0):
