@@ -567,7 +567,7 @@ class OnlineHerdEstimator:
             out.append(keep)
         return out
 
-    def pruned_estimate(self, keeps):
+    def pruned_estimate(self, keeps, standard_errors: bool = True):
         """θ and its standard errors with the coefficients of dropped centres set to zero.
 
         The RLS state is the quadratic form of the least-squares cost,
@@ -577,12 +577,16 @@ class OnlineHerdEstimator:
             θ_k = θ̂_k − P_kd P_dd⁻¹ θ̂_d,   Cov θ_k = C_kk − C_kd C_dd⁻¹ C_dk,
 
         i.e. the least-squares fit on the kept basis alone, without revisiting the data.
-        One small solve per agent, at export time only.
+        One small solve per agent. Without ``standard_errors`` (what is published after every
+        update needs θ only) the errors are None.
         """
         o, K = self.regressor.field_offset, self.basis.size
-        theta, cov = self.rls.theta.copy(), self.rls.theta_cov()
-        se = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
-        for i, keep in enumerate(keeps):  # export only: one (d × d) solve per agent
+        theta = self.rls.theta.copy()
+        cov = se = None
+        if standard_errors:
+            cov = self.rls.theta_cov()
+            se = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
+        for i, keep in enumerate(keeps):
             drop = np.zeros(self.rls.n_params, dtype=bool)
             drop[o:o + K] = drop[o + K:o + 2 * K] = ~keep
             if not drop.any():
@@ -592,9 +596,10 @@ class OnlineHerdEstimator:
             gain = np.linalg.solve(P[np.ix_(drop, drop)], P[np.ix_(drop, kept)]).T
             theta[i, kept] -= gain @ theta[i, drop]
             theta[i, drop] = 0.0
-            c = cov[i]
-            ck = c[np.ix_(kept, kept)] - gain @ c[np.ix_(drop, kept)]
-            se[i, kept] = np.sqrt(np.clip(np.diag(ck), 0, None))
+            if standard_errors:
+                c = cov[i]
+                ck = c[np.ix_(kept, kept)] - gain @ c[np.ix_(drop, kept)]
+                se[i, kept] = np.sqrt(np.clip(np.diag(ck), 0, None))
         return theta, se
 
     def refit_noise_regimes(self):
@@ -643,7 +648,7 @@ class OnlineHerdEstimator:
         :meth:`home_pull` for that θ and the noise the robots draw (the stationary mean of
         :meth:`published_regimes`: the herd's present pace)."""
         from herd_ros.model.noise_regimes import stationary_mean
-        theta, _ = self.pruned_estimate(self.kept_centers())
+        theta, _ = self.pruned_estimate(self.kept_centers(), standard_errors=False)
         noise = stationary_mean(*self.published_regimes())
         return theta, self.home_pull(theta, noise), self.herd_place(theta, noise)
 

@@ -72,19 +72,20 @@ def check_regimes(covariances, transition, where: str = 'noise regimes'):
 
 
 def stationary_distribution(transition: np.ndarray) -> np.ndarray:
-    """π with π Π = π (the left eigenvector of eigenvalue 1, normalised)."""
+    """π with π Π = π (the left eigenvector of eigenvalue 1, normalised); a stack of
+    transitions (..., K, K) gives a stack (..., K)."""
     t = np.asarray(transition, dtype=float)
-    w, v = np.linalg.eig(t.T)
-    pi = np.abs(np.real(v[:, np.argmin(np.abs(w - 1.0))]))
-    return pi / pi.sum()
+    w, v = np.linalg.eig(np.swapaxes(t, -1, -2))
+    one = np.argmin(np.abs(w - 1.0), axis=-1)
+    pi = np.abs(np.real(np.take_along_axis(v, one[..., None, None], axis=-1)[..., 0]))
+    return pi / pi.sum(axis=-1, keepdims=True)
 
 
 def stationary_mean(covariances, transition) -> np.ndarray:
     """Σ_k π_ik Q_ik per agent: the stationary mean (N, 2, 2) of regime covariances
     (N, K, 2, 2) under transitions (N, K, K) — the noise level a chain keeps on average."""
-    return np.stack([np.einsum('k,kij->ij', stationary_distribution(t), c)
-                     for c, t in zip(np.asarray(covariances, dtype=float),
-                                     np.asarray(transition, dtype=float))])
+    pi = stationary_distribution(transition)
+    return np.einsum('nk,nkij->nij', pi, np.asarray(covariances, dtype=float))
 
 
 def fit_regimes(residuals: np.ndarray, n_regimes: int, iterations: int = 200,
