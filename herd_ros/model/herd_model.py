@@ -98,10 +98,9 @@ def pairwise_geometry(positions: np.ndarray):
     """
     p = np.asarray(positions, dtype=float)
     offset = p[..., None, :, :] - p[..., :, None, :]
-    dist = np.sqrt((offset ** 2).sum(-1))
-    n = p.shape[-2]
-    diag = np.eye(n, dtype=bool)
-    dist = np.where(diag, np.inf, dist)
+    dist = np.sqrt(offset[..., 0] ** 2 + offset[..., 1] ** 2)
+    n = np.arange(p.shape[-2])
+    dist[..., n, n] = np.inf
     with np.errstate(invalid='ignore', divide='ignore'):
         unit = offset / dist[..., None]
     return offset, dist, unit
