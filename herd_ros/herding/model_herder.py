@@ -158,11 +158,8 @@ class LearnedResponse:
         if diagonal:
             n = ox.shape[1]
             d[:, np.arange(n), np.arange(n)] = np.inf
-            h = self._lookup(table, d)
-            d = np.where(np.isfinite(d), d, 1.0)
-        else:
-            h = self._lookup(table, d)
-            d = np.maximum(d, 1e-9)
+        h = self._lookup(table, d)
+        d = np.where(np.isfinite(d), d, 1.0) if diagonal else np.maximum(d, 1e-9)
         # [k, j, i]: the sum over j along axis 1
         return np.stack([(h * ox / d).transpose(0, 2, 1).copy().sum(1),
                          (h * oy / d).transpose(0, 2, 1).copy().sum(1)], axis=-1)

@@ -64,8 +64,9 @@ def loop_gain(c_small, damping, coupling=1.0):
     edge = 1.0 - a
     grid = edge[:, None] * (np.arange(1, _GRID) / _GRID)[None]
     f = spread_factor(grid, a[:, None])
-    best = grid[np.arange(len(a)), np.argmin(f, axis=1)]      # the minimum of f
-    reachable = spread_factor(best, a) <= target
+    lowest = (np.arange(len(a)), np.argmin(f, axis=1))
+    best = grid[lowest]                                        # the minimum of f
+    reachable = f[lowest] <= target
     c_offset = best.copy()
     if reachable.any():
         r = reachable
