@@ -12,7 +12,8 @@ from herd_ros.ingest import collar_bank
 from herd_ros.ingest.collar_filter import FilterParams
 from herd_ros.ingest.motion_refit import (MotionRefitter, RefitConfig, fix_variance,
                                           process_with_refits, refit_due, split_points)
-from herd_ros.ingest.pipeline import (auto_filter_params, fixes_enu, refit_config,
+from herd_ros.ingest.pipeline import (DEFAULT_WALK_ACCEL_STD, auto_filter_params,
+                                      fixes_enu, refit_config,
                                       trajectory_from_fixes, with_walk)
 from herd_ros.synthesis.collar_errors import CollarErrorModel, simulate_collar_fixes
 from herd_ros.synthesis.cow_scenario import simulate_cow_herd
@@ -71,7 +72,7 @@ def test_the_refits_do_not_depend_on_the_batching(collared_cows):
     raw = collared_cows
     datum = raw.attrs['datum']
     offline = trajectory_from_fixes(raw, datum=datum, trim=False, motion_model='fit')
-    params = with_walk(FilterParams(**auto_filter_params(raw)))
+    params = with_walk(FilterParams(**auto_filter_params(raw)), DEFAULT_WALK_ACCEL_STD)
     agents = list(offline.agents)
     fixes = raw.sort_values('time', kind='stable').reset_index(drop=True)
     e, n = fixes_enu(fixes, datum)

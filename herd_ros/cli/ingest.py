@@ -35,16 +35,20 @@ def add_filter_arguments(parser):
     g.add_argument('--motion-model', choices=('auto', 'fit', 'fixed'), default='auto',
                    help='fit: each collar\'s movement model (an integrated Ornstein-'
                         'Uhlenbeck velocity, random walk to constant velocity) and fix std '
-                        'refitted by maximum likelihood as its fixes arrive, the model below '
-                        'its prior and walk component; fixed: the model below for every '
-                        'collar; auto (default): fit unless --accel-std or --velocity-tau is '
-                        'given')
+                        'refitted by maximum likelihood as its fixes arrive, the walk of '
+                        '--walk-accel-std its prior and walk component; fixed: the model of '
+                        '--accel-std for every collar; auto (default): fit unless '
+                        '--accel-std or --velocity-tau is given')
     g.add_argument('--accel-std', type=float, default=None,
-                   help='white-noise acceleration std of the motion model (m/s^2); '
+                   help='white-noise acceleration std of the fixed motion model (m/s^2); '
                         'default 0.05')
     g.add_argument('--velocity-tau', type=float, default=None,
                    help='velocity correlation time (s) of the correlated random walk; '
                         '0 = constant velocity; default 120')
+    g.add_argument('--walk-accel-std', type=float, default=None,
+                   help='white-noise acceleration std (m/s^2) of the walk, the broad '
+                        'component of a fitted collar\'s graze/walk mixture and its prior '
+                        'until the first fit; default 0.1 (a walking animal, ~1 m/s)')
     g.add_argument('--walk-probability', type=float, default=0.05,
                    help='prior probability per fix that a fitted collar walks (moves by the '
                         'broad model above rather than its own)')
@@ -64,6 +68,7 @@ def add_filter_arguments(parser):
 def filter_kwargs(args) -> dict:
     """The filter parameters given on the command line (None = from the data)."""
     return dict(motion_model=args.motion_model, walk_probability=args.walk_probability,
+                walk_accel_std=args.walk_accel_std,
                 accel_std=args.accel_std, velocity_tau=args.velocity_tau,
                 default_position_std=args.default_position_std,
                 position_std_floor=args.position_std_floor,

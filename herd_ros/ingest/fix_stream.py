@@ -118,13 +118,17 @@ class FixStream:
         """Fixes held until the datum is chosen."""
         return sum(len(c) for c, _ in self._pending)
 
-    # -- live parameters (accel_std, max_speed, cruise_speed, sprint_s) --------------------
+    # -- live parameters (accel_std, walk_accel_std, max_speed, cruise_speed, sprint_s) --
     def _changed(self, name, value) -> FilterParams:
-        if name == 'accel_std' and self.refitter is not None:
-            # fitted collars: the parameter is the walk component's (and the prior's)
+        if name == 'walk_accel_std':
+            if self.refitter is None:       # a fixed model has no walk component
+                return self.params
+            # fitted collars: the walk component's (and the prior's) acceleration
             p = dataclasses.replace(self.params, walk_accel_std=None, walk_velocity_tau=None,
-                                    accel_std=float(value), velocity_tau=self.params.walk[1])
-            return with_walk(p)
+                                    velocity_tau=self.params.walk[1])
+            return with_walk(p, float(value))
+        if name == 'accel_std' and self.refitter is not None:
+            return self.params              # the fixed model's, not used by fitted collars
         return dataclasses.replace(self.params, **{name: float(value)})
 
     def check_param(self, name, value) -> str | None:
@@ -138,14 +142,15 @@ class FixStream:
     def set_param(self, name, value):
         """The bank reads its parameters at every batch: the next fix uses the new value."""
         self.params = self.bank.params = self._changed(name, value)
-        if name == 'accel_std':
-            if self.refitter is None:
-                self.bank.accel_std[:] = self.params.accel_std
-            else:       # the collars not fitted yet move by the new prior
-                unfitted = np.array([f is None for f in self.refitter.fits])
-                self.bank.accel_std[unfitted] = self.params.accel_std
-                w = self.params.walk
-                self.refitter.config.walk = (w[0], w[1], self.params.walk_probability)
+        if name == 'accel_std' and self.refitter is None:
+            self.bank.accel_std[:] = self.params.accel_std
+        elif name == 'walk_accel_std' and self.refitter is not None:
+            # the collars not fitted yet move by the new prior; the fits use the new walk
+            unfitted = np.array([f is None for f in self.refitter.fits])
+            self.bank.accel_std[unfitted] = self.params.accel_std
+            w = self.params.walk
+            self.refitter.config.walk = (w[0], w[1], self.params.walk_probability,
+                                         self.refitter.config.walk[3])
 
     # -- fixes ------------------------------------------------------------------------
     def push(self, collars: np.ndarray, fixes: NavSatFixes, now: float) -> StreamOutput:

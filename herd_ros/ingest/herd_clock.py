@@ -81,6 +81,9 @@ class StateTimeline:
             forward (a collar whose model is refitted as its fixes arrive,
             :mod:`~herd_ros.ingest.motion_refit`); None = ``accel_std``, ``velocity_tau``
             for every state.
+        walk: (σ_a, τ_v, π) of the filter's walk component (a graze/walk mixture,
+            :attr:`~herd_ros.ingest.collar_filter.FilterParams.walk`, taken with prior
+            probability π at every step), or None: what the smoothers predict with.
     """
 
     t: np.ndarray
@@ -91,6 +94,7 @@ class StateTimeline:
     segment: np.ndarray | None = None
     velocity_tau: float = 0.0
     motion: np.ndarray | None = None
+    walk: tuple | None = None
 
     def __post_init__(self):
         if self.segment is None:
@@ -156,7 +160,15 @@ class TimelineRecorder:
                              np.asarray(self.P, dtype=float).reshape(-1, 4, 4),
                              p.accel_std, p.stale_after,
                              np.asarray(self.segment, dtype=int), p.velocity_tau,
-                             np.asarray(self.motion, dtype=float).reshape(-1, 2))
+                             np.asarray(self.motion, dtype=float).reshape(-1, 2),
+                             walk_of(p))
+
+
+def walk_of(params) -> tuple | None:
+    """(σ_a, τ_v, π) of the walk component of a filter with ``params`` (a
+    :class:`~herd_ros.ingest.collar_filter.FilterParams`), or None: a timeline's ``walk``."""
+    w = params.walk
+    return None if w is None else (float(w[0]), float(w[1]), float(params.walk_probability))
 
 
 def resample_timelines(timelines: dict[str, StateTimeline], ticks, agents=None

@@ -40,7 +40,7 @@ from herd_ros.ingest.collar_filter import COUNTERS, CollarFilter, FilterParams, 
 from herd_ros.ingest.geodesy import geodetic_to_enu
 from herd_ros.ingest import collar_bank
 from herd_ros.ingest.herd_clock import (StateTimeline, TimelineRecorder, resample_timelines,
-                                        tick_grid)
+                                        tick_grid, walk_of)
 from herd_ros.ingest.stamp_guards import MAX_STAMP_AHEAD_S, future_stamps
 from herd_ros.io.gps_files import normalise_fixes, read_fix_file, sniff_format
 from herd_ros.trajectory import HerdTrajectory
@@ -155,6 +155,12 @@ def track_dt(fixes: pd.DataFrame) -> float:
 #: axis), right for walking and grazing animals fixed every second to every few minutes.
 DEFAULT_ACCEL_STD = 0.05
 DEFAULT_VELOCITY_TAU = 120.0
+#: The walk component of a collar whose motion is fitted, and its prior before the first
+#: fit (:func:`with_walk`): a walking animal. Cattle walk to water at about 1 m/s (baboons
+#: travel at 0.5-1 m/s); with :data:`DEFAULT_VELOCITY_TAU` the stationary speed std is
+#: σ_a √(τ_v / 2) = 0.77 m/s per axis, 1.1 m/s in the plane. The grazing and resting
+#: animal is the collar's own fitted model.
+DEFAULT_WALK_ACCEL_STD = 0.1
 
 
 def auto_filter_params(fixes: pd.DataFrame, **given) -> dict:
@@ -223,21 +229,27 @@ def refit_config(params: FilterParams, window: int = 200, planar: bool = False):
 PRIOR_VELOCITY_TAU = 0.1
 
 
-def with_walk(params: FilterParams) -> FilterParams:
-    """The filter of a collar whose motion is fitted, before its first fit: its configured
-    model becomes the walk component, and its own model is the random walk with the walk's
-    long-run diffusion (D = σ_a² τ_v², the fixes followed closely, without carrying a
-    velocity across the intervals) until the data say otherwise; the walk component's fixes
-    count with the configured ``default_position_std`` added (a glitch of a few metres is
-    discounted, not rejected)."""
+def with_walk(params: FilterParams, walk_accel_std: float | None = None) -> FilterParams:
+    """The filter of a collar whose motion is fitted, before its first fit: the walk
+    component is the correlated random walk of ``walk_accel_std`` (None: ``params``'
+    ``accel_std``) and ``params``' velocity_tau, and its own model is the random walk with
+    the walk's long-run diffusion (D = σ_a² τ_v², the fixes followed closely, without
+    carrying a velocity across the intervals) until the data say otherwise; the walk
+    component's fixes count with the configured ``default_position_std`` added (a glitch
+    of a few metres is discounted, not rejected). ``params`` that already have a walk
+    component are returned as they are."""
     if params.walk is not None:
         return params
     import dataclasses
+    accel = params.accel_std if walk_accel_std is None else float(walk_accel_std)
+    if not (np.isfinite(accel) and accel > 0):
+        raise HerdInputError(f'filter parameter walk_accel_std must be positive, got '
+                             f'{walk_accel_std!r}')
     tau = params.velocity_tau if params.velocity_tau > 0 else 120.0
-    D = (params.accel_std * tau) ** 2
+    D = (accel * tau) ** 2
     return dataclasses.replace(params, accel_std=math.sqrt(D) / PRIOR_VELOCITY_TAU,
                                velocity_tau=PRIOR_VELOCITY_TAU,
-                               walk_accel_std=params.accel_std,
+                               walk_accel_std=accel,
                                walk_velocity_tau=params.velocity_tau,
                                walk_position_std=params.default_position_std)
 
@@ -417,7 +429,8 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
         timelines[agent] = StateTimeline(t[rows[sl]][keep], xs[sl][keep], Ps[sl][keep],
                                          p.accel_std, p.stale_after, seg[sl][keep],
                                          p.velocity_tau,
-                                         motion[sl][keep] if refit is not None else None)
+                                         motion[sl][keep] if refit is not None else None,
+                                         walk_of(params))
         collars[agent] = CollarSummary(p, bank.counter_dict(i), float(bank.t[i]), fit)
     return collars, timelines, reasons
 
@@ -450,10 +463,12 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
             :func:`run_filters`.
         motion_model: ``'fit'``: each collar's motion model (and the std of its fixes
             without a covariance) refitted by maximum likelihood as its fixes arrive
-            (:mod:`~herd_ros.ingest.motion_refit`, :mod:`~herd_ros.ingest.motion_fit`; the
-            configured model is the prior and the walk component); ``'fixed'``: one model
-            for all, ``accel_std``/``velocity_tau``; ``'auto'`` (default): ``'fit'``
-            unless ``accel_std`` or ``velocity_tau`` is given.
+            (:mod:`~herd_ros.ingest.motion_refit`, :mod:`~herd_ros.ingest.motion_fit`;
+            the walk of ``walk_accel_std`` (None or absent:
+            :data:`DEFAULT_WALK_ACCEL_STD`) and ``velocity_tau`` is the prior and the walk
+            component, :func:`with_walk`); ``'fixed'``: one model for all,
+            ``accel_std``/``velocity_tau``; ``'auto'`` (default): ``'fit'`` unless
+            ``accel_std`` or ``velocity_tau`` is given.
         now, max_stamp_ahead_s: a fix stamped more than ``max_stamp_ahead_s`` after ``now``
             (default: the wall clock) is rejected (outcome ``future``, counter
             ``rejected_future``), as ``gps_ingest`` does (:mod:`~herd_ros.ingest
@@ -496,6 +511,7 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
                                  f'the wall clock (the first at {all_fixes["time"].min():.3f})')
     if dt is None:
         dt = auto_dt(fixes)
+    walk_accel_std = filter_params.pop('walk_accel_std', None)
     params = FilterParams(**auto_filter_params(fixes, **filter_params))
     if is_planar(fixes):
         datum = None
@@ -508,7 +524,11 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     if motion_model == 'auto':
         given = {k for k in ('accel_std', 'velocity_tau') if filter_params.get(k) is not None}
         motion_model = 'fixed' if given else 'fit'
-    refit = refit_config(params, planar=is_planar(fixes)) if motion_model == 'fit' else None
+    refit = None
+    if motion_model == 'fit':
+        params = with_walk(params, DEFAULT_WALK_ACCEL_STD if walk_accel_std is None
+                           else walk_accel_std)
+        refit = refit_config(params, planar=is_planar(fixes))
     enu = fixes_enu(fixes, datum)
     collars, timelines, reasons = run_filters(fixes, datum, params, agents, progress, engine,
                                               refit, enu)

@@ -26,7 +26,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.signal import lfilter, lfilter_zi
 
-from herd_ros.ingest.collar_filter import predict_state, process_noise, transition
+from herd_ros.ingest.collar_filter import process_noise, transition
 from herd_ros.ingest.herd_clock import StateTimeline
 
 
@@ -69,6 +69,74 @@ def _gain_matrix(tau, accel_std):
     return out
 
 
+def _models(timeline: StateTimeline) -> tuple[np.ndarray, np.ndarray]:
+    """(σ_a (K,), τ_v (K,)): the motion model that carries each state of ``timeline``
+    forward (its ``motion``, or its one model), as the filter and the herd clock use it."""
+    K = len(timeline.t)
+    if timeline.motion is None:
+        return np.full(K, float(timeline.accel_std)), np.full(K, float(timeline.velocity_tau))
+    return timeline.motion[:, 0], timeline.motion[:, 1]
+
+
+def _by_model(accel, vt):
+    """(σ_a, τ_v, rows) for each distinct model of the (M,) arrays ``accel``, ``vt``."""
+    pairs = np.stack([accel, vt], axis=1)
+    uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
+    inv = np.asarray(inv).reshape(-1)
+    return [(float(a), float(v), np.flatnonzero(inv == j)) for j, (a, v) in enumerate(uniq)]
+
+
+def _steps(tau, accel, vt):
+    """``F(τ_m)`` and ``Q(τ_m)`` (M, 4, 4) of step m under the model (``accel[m]``,
+    ``vt[m]``) (:func:`~herd_ros.ingest.collar_filter.transition`,
+    :func:`~herd_ros.ingest.collar_filter.process_noise`)."""
+    tau = np.asarray(tau, dtype=float)
+    F = np.empty(tau.shape + (4, 4))
+    Q = np.empty(tau.shape + (4, 4))
+    for a, v, rows in _by_model(accel, vt):
+        F[rows] = transition(tau[rows], v)
+        Q[rows] = process_noise(tau[rows], a, v)
+    return F, Q
+
+
+def _components(timeline: StateTimeline, rows):
+    """[(weight, σ_a (M,), τ_v (M,))]: the motion that carries the states ``rows``
+    forward — their own model and, for a graze/walk mixture, the walk at its prior
+    probability."""
+    accel, vt = _models(timeline)
+    a, v = accel[rows], vt[rows]
+    if timeline.walk is None:
+        return [(1.0, a, v)]
+    wa, wv, pw = timeline.walk
+    return [(1.0 - pw, a, v), (pw, np.full(a.shape, wa), np.full(v.shape, wv))]
+
+
+def _moment_steps(x, P, tau, comps):
+    """``F̄``, ``Q̄`` (M, 4, 4) of the motion ``comps`` (:func:`_components`) over ``tau``
+    from the states (x (M, 4), P (M, 4, 4)), such that the prior of the next state has
+    mean ``F̄ x``, covariance ``F̄ P F̄ᵀ + Q̄`` and covariance ``P F̄ᵀ`` with the state —
+    the moments of the GPB1 filter's prior, the mixture over components j with weights
+    w_j (Bar-Shalom, Li & Kirubarajan 2001, eq. 11.6.6-7)::
+
+        F̄ = Σ w_j F_j,   Q̄ = Σ w_j (F_j P F_jᵀ + Q_j + (F_j − F̄) x xᵀ (F_j − F̄)ᵀ) − F̄ P F̄ᵀ
+
+    With one component, ``F`` and ``Q`` themselves. The smoothers below are the Gaussian
+    RTS smoother on these moments (Särkkä 2013, §9.1): with them an RTS pass over a
+    mixture filter's states agrees with what the filter assumed between fixes."""
+    if len(comps) == 1:
+        _, a, v = comps[0]
+        return _steps(tau, a, v)
+    parts = [(w, *_steps(tau, a, v)) for w, a, v in comps]
+    Fbar = sum(w * F for w, F, _ in parts)
+    mean = np.einsum('...ij,...j->...i', Fbar, x)
+    Qbar = -np.einsum('...ij,...jk,...lk->...il', Fbar, P, Fbar)
+    for w, F, Q in parts:
+        d = np.einsum('...ij,...j->...i', F, x) - mean
+        Qbar += w * (np.einsum('...ij,...jk,...lk->...il', F, P, F) + Q
+                     + d[..., :, None] * d[..., None, :])
+    return Fbar, 0.5 * (Qbar + np.swapaxes(Qbar, -1, -2))
+
+
 def rts_timeline(timeline: StateTimeline) -> tuple[np.ndarray, np.ndarray]:
     """RTS-smoothed states at the timeline's own times, segment by segment:
     (x (K, 4), P (K, 4, 4))."""
@@ -80,9 +148,11 @@ def rts_timeline(timeline: StateTimeline) -> tuple[np.ndarray, np.ndarray]:
         idx = np.flatnonzero(seg == s)
         if len(idx) < 2:
             continue
-        tau = np.concatenate([[0.0], np.diff(timeline.t[idx])])
-        Fs = transition(tau, timeline.velocity_tau)
-        Qs = process_noise(tau, timeline.accel_std, timeline.velocity_tau)
+        # filterpy's step k + 1 carries state k: by the motion state k moved with
+        F, Q = _moment_steps(timeline.x[idx[:-1]], timeline.P[idx[:-1]],
+                             np.diff(timeline.t[idx]), _components(timeline, idx[:-1]))
+        Fs = np.concatenate([np.eye(4)[None], F])
+        Qs = np.concatenate([np.zeros((1, 4, 4)), Q])
         x_s, P_s, _, _ = kf.rts_smoother(timeline.x[idx], timeline.P[idx], Fs, Qs)
         xs[idx], Ps[idx] = x_s, P_s
     return xs, Ps
@@ -107,9 +177,8 @@ def fixed_lag_timeline(timeline: StateTimeline, lag: int) -> tuple[np.ndarray, n
     xs, Ps = x.copy(), P.copy()
     if K < 2 or lag == 0:
         return xs, Ps
-    tau = np.diff(timeline.t)
-    F = transition(tau, timeline.velocity_tau)
-    Q = process_noise(tau, timeline.accel_std, timeline.velocity_tau)
+    F, Q = _moment_steps(x[:-1], P[:-1], np.diff(timeline.t),
+                         _components(timeline, np.arange(K - 1)))
     xp = np.einsum('kij,kj->ki', F, x[:-1])
     Pp = np.einsum('kij,kjl,kml->kim', F, P[:-1], F) + Q
     J = np.swapaxes(np.linalg.solve(Pp, np.einsum('kij,klj->kil', F, P[:-1])), -1, -2)
@@ -146,31 +215,49 @@ def rts_on_ticks(timeline: StateTimeline, ticks, lag: int | None = None):
     have = k >= 0
     k = np.where(have, k, 0)
     tau1 = ticks - timeline.t[k]
+    comps = _components(timeline, k)    # the motion that carries state k to the tick
     # the filtered prediction from fix k to the tick (and the plain answer after a segment)
-    vt = timeline.velocity_tau
-    xf, Pf = predict_state(timeline.x[k], timeline.P[k], tau1, timeline.accel_std, vt)
-    xsp, Psp = predict_state(xs[k], Ps[k], tau1, timeline.accel_std, vt)
+    f1, q1 = _moment_steps(timeline.x[k], timeline.P[k], tau1, comps)
+    xf = np.einsum('...ij,...j->...i', f1, timeline.x[k])
+    Pf = np.einsum('...ij,...jk,...lk->...il', f1, timeline.P[k], f1) + q1
+    g1, r1 = _moment_steps(xs[k], Ps[k], tau1, comps)
+    xsp = np.einsum('...ij,...j->...i', g1, xs[k])
+    Psp = np.einsum('...ij,...jk,...lk->...il', g1, Ps[k], g1) + r1
     nxt = np.minimum(k + 1, K - 1)
     inside = have & (k + 1 < K) & (timeline.segment[nxt] == timeline.segment[k])
     x_out[have], P_out[have] = xsp[have], Psp[have]
     if inside.any():
         ki, kn, t1 = k[inside], nxt[inside], tau1[inside]
         delta = timeline.t[kn] - timeline.t[ki]
-        f1, f2 = transition(t1, vt), transition(delta, vt)
-        Pk = timeline.P[ki]
-        if vt > 0:
-            # a Markov (continuous) model: x(δ) = F(δ − t1) x(t1) + independent noise, so the
-            # noise to t1 and to δ covary as Q(t1) F(δ − t1)ᵀ
-            cross = np.einsum('...ij,...kj->...ik', process_noise(t1, timeline.accel_std, vt),
-                              transition(delta - t1, vt))
-        else:
-            cross = _gain_matrix((t1, delta), timeline.accel_std)
-        c = np.einsum('...ij,...jk,...lk->...il', f1, Pk, f2) + cross
-        x_next_prior, P_next_prior = predict_state(timeline.x[ki], Pk, delta,
-                                                   timeline.accel_std, vt)
+        xk, Pk = timeline.x[ki], timeline.P[ki]
+        # C = cov(x(t1), x(δ) | fixes to k) = Σ w_j (F_j(t1) P F_j(δ)ᵀ + the noises'
+        # covariance + the spread of the components' means), with x(δ)'s prior moments
+        m1 = np.einsum('...ij,...j->...i', f1[inside], xk)
+        f2, q2 = _moment_steps(xk, Pk, delta, [(w, a[inside], v[inside]) for w, a, v in comps])
+        m2 = np.einsum('...ij,...j->...i', f2, xk)
+        c = np.zeros(t1.shape + (4, 4))
+        for w, a_all, v_all in comps:
+            a_in, v_in = a_all[inside], v_all[inside]
+            g1_j, _ = _steps(t1, a_in, v_in)
+            g2_j, _ = _steps(delta, a_in, v_in)
+            cross = np.empty(t1.shape + (4, 4))
+            for a, v, rows in _by_model(a_in, v_in):
+                if v > 0:
+                    # a Markov (continuous) model: x(δ) = F(δ − t1) x(t1) + independent
+                    # noise, so the noise to t1 and to δ covary as Q(t1) F(δ − t1)ᵀ
+                    cross[rows] = np.einsum('...ij,...kj->...ik',
+                                            process_noise(t1[rows], a, v),
+                                            transition(delta[rows] - t1[rows], v))
+                else:
+                    cross[rows] = _gain_matrix((t1[rows], delta[rows]), a)
+            d1 = np.einsum('...ij,...j->...i', g1_j, xk) - m1
+            d2 = np.einsum('...ij,...j->...i', g2_j, xk) - m2
+            c += w * (np.einsum('...ij,...jk,...lk->...il', g1_j, Pk, g2_j) + cross
+                      + d1[..., :, None] * d2[..., None, :])
+        P_next_prior = np.einsum('...ij,...jk,...lk->...il', f2, Pk, f2) + q2
         gain = np.linalg.solve(P_next_prior, np.swapaxes(c, -1, -2))
         gain = np.swapaxes(gain, -1, -2)                   # J = C P⁻⁻¹ (P⁻ symmetric)
-        dx = xs[kn] - x_next_prior
+        dx = xs[kn] - m2
         dP = Ps[kn] - P_next_prior
         x_out[inside] = xf[inside] + np.einsum('...ij,...j->...i', gain, dx)
         P_out[inside] = Pf[inside] + np.einsum('...ij,...jk,...lk->...il', gain, dP, gain)

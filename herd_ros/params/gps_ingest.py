@@ -72,8 +72,9 @@ PARAMS = {
         'fit',
         ("fit: each collar's motion model (an integrated Ornstein-Uhlenbeck "
          'velocity) and fix std refitted by maximum likelihood as its fixes '
-         'arrive, the model of accel_std and velocity_tau its prior and walk '
-         'component; fixed: that model for every collar'),
+         'arrive, the walk of walk_accel_std and velocity_tau its prior and walk '
+         'component; fixed: the model of accel_std and velocity_tau for every '
+         'collar'),
         choices=('fit', 'fixed'),
         doc=('\n'
              "fit: each collar's motion model (an integrated Ornstein-Uhlenbeck "
@@ -84,13 +85,13 @@ PARAMS = {
              'innovations after its\n'
              '20th, 40th, 80th, ... fix (then every 1000), on its last '
              'motion_window accepted\n'
-             'fixes; the model of accel_std / velocity_tau below is the broad '
-             '"walk" component of\n'
-             'a graze/walk mixture and the prior until the first fit. fixed: '
-             'accel_std /\n'
-             'velocity_tau for every collar (the pre-fit behaviour). `herd-ros '
-             'ingest` runs the\n'
-             'same schedule, so a file and the live graph give the same track.')),
+             'fixes; the walk of walk_accel_std / velocity_tau below is the '
+             'broad component of a\n'
+             'graze/walk mixture and the prior until the first fit. fixed: '
+             'accel_std / velocity_tau\n'
+             'for every collar (the pre-fit behaviour). `herd-ros ingest` runs '
+             'the same schedule,\n'
+             'so a file and the live graph give the same track.')),
     'motion_window': Param(
         200,
         'accepted fixes per collar its motion model is fitted on',
@@ -104,20 +105,37 @@ PARAMS = {
              'the broad model).')),
     'accel_std': Param(
         0.05,
-        ('std of the white-noise acceleration (m/s²) of the motion model (with '
-         'motion_model fit: of the walk component and the prior)'),
+        ('std of the white-noise acceleration (m/s²) of the motion model of '
+         'motion_model fixed'),
         range=(0.0, 100.0),
         live=True,
         doc=('\n'
-             'Std of the white-noise acceleration (m/s^2) of the motion model. '
-             'Grazing cattle move\n'
-             'at 0.05-0.3 m/s and walk at ~1 m/s, changing speed over tens of '
-             'seconds: 0.05 m/s^2\n'
-             'lets the velocity drift ~0.4 m/s in a minute. With velocity_tau '
-             '120 the stationary\n'
-             'speed std is accel_std * sqrt(velocity_tau / 2) = 0.39 m/s per '
-             'axis. Raise it\n'
-             '(0.2-0.5) for animals that are chased.')),
+             'Std of the white-noise acceleration (m/s^2) of the motion model of '
+             'motion_model fixed\n'
+             '(every collar\'s). Grazing cattle move at 0.05-0.3 m/s and walk at '
+             '~1 m/s, changing\n'
+             'speed over tens of seconds: 0.05 m/s^2 lets the velocity drift ~0.4 '
+             'm/s in a minute.\n'
+             'With velocity_tau 120 the stationary speed std is accel_std * '
+             'sqrt(velocity_tau / 2)\n'
+             '= 0.39 m/s per axis. Raise it (0.2-0.5) for animals that are '
+             'chased.')),
+    'walk_accel_std': Param(
+        0.1,
+        ('std of the white-noise acceleration (m/s²) of the walk component and '
+         'the prior of motion_model fit'),
+        range=(1e-06, 100.0),
+        live=True,
+        doc=('\n'
+             'Std of the white-noise acceleration (m/s^2) of the walk (motion_model '
+             'fit): the broad\n'
+             'component of each collar\'s graze/walk mixture, and its prior until '
+             'the first fit. A\n'
+             'walking animal: with velocity_tau 120 the stationary speed std is '
+             '0.1 * sqrt(60) =\n'
+             '0.77 m/s per axis, 1.1 m/s in the plane (cattle walk to water at ~1 '
+             'm/s). The grazing\n'
+             'and resting animal is the collar\'s own fitted model.')),
     'velocity_tau': Param(
         120.0,
         ('velocity correlation time (s) of the motion model; 0 = constant '
@@ -427,7 +445,7 @@ class GpsIngestConfig:
             raise ParameterError(str(exc).replace('filter parameter ', '')) from None
         self.refit = None
         if self.motion_model == 'fit':
-            self.filter_params = with_walk(self.filter_params)
+            self.filter_params = with_walk(self.filter_params, p['walk_accel_std'])
             self.refit = refit_config(self.filter_params, p['motion_window'])
         self.frame_id = str(p['frame_id']).strip()
         if not self.frame_id:
