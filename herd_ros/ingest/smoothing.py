@@ -80,10 +80,26 @@ def _models(timeline: StateTimeline) -> tuple[np.ndarray, np.ndarray]:
 
 def _by_model(accel, vt):
     """(σ_a, τ_v, rows) for each distinct model of the (M,) arrays ``accel``, ``vt``."""
-    pairs = np.stack([accel, vt], axis=1)
-    uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
+    accel = np.asarray(accel, dtype=float)
+    vt = np.asarray(vt, dtype=float)
+    if accel.size == 0:
+        return []
+    if np.all(accel == accel[0]) and np.all(vt == vt[0]):     # the common case: one model
+        return [(float(accel[0]), float(vt[0]), slice(None))]
+    uniq, inv = np.unique(accel + 1j * vt, return_inverse=True)
     inv = np.asarray(inv).reshape(-1)
-    return [(float(a), float(v), np.flatnonzero(inv == j)) for j, (a, v) in enumerate(uniq)]
+    return [(float(u.real), float(u.imag), np.flatnonzero(inv == j))
+            for j, u in enumerate(uniq)]
+
+
+def _sandwich(A, P, B):
+    """A P Bᵀ for stacks of 4 × 4 matrices."""
+    return A @ P @ np.swapaxes(B, -1, -2)
+
+
+def _mv(A, x):
+    """A x for stacks of 4 × 4 matrices and 4-vectors."""
+    return (A @ np.asarray(x, dtype=float)[..., :, None])[..., 0]
 
 
 def _steps(tau, accel, vt):
@@ -128,12 +144,12 @@ def _moment_steps(x, P, tau, comps):
         return _steps(tau, a, v)
     parts = [(w, *_steps(tau, a, v)) for w, a, v in comps]
     Fbar = sum(w * F for w, F, _ in parts)
-    mean = np.einsum('...ij,...j->...i', Fbar, x)
-    Qbar = -np.einsum('...ij,...jk,...lk->...il', Fbar, P, Fbar)
+    x = np.asarray(x, dtype=float)[..., :, None]
+    mean = Fbar @ x
+    Qbar = -_sandwich(Fbar, P, Fbar)
     for w, F, Q in parts:
-        d = np.einsum('...ij,...j->...i', F, x) - mean
-        Qbar += w * (np.einsum('...ij,...jk,...lk->...il', F, P, F) + Q
-                     + d[..., :, None] * d[..., None, :])
+        d = F @ x - mean
+        Qbar += w * (_sandwich(F, P, F) + Q + d * np.swapaxes(d, -1, -2))
     return Fbar, 0.5 * (Qbar + np.swapaxes(Qbar, -1, -2))
 
 
@@ -218,11 +234,11 @@ def rts_on_ticks(timeline: StateTimeline, ticks, lag: int | None = None):
     comps = _components(timeline, k)    # the motion that carries state k to the tick
     # the filtered prediction from fix k to the tick (and the plain answer after a segment)
     f1, q1 = _moment_steps(timeline.x[k], timeline.P[k], tau1, comps)
-    xf = np.einsum('...ij,...j->...i', f1, timeline.x[k])
-    Pf = np.einsum('...ij,...jk,...lk->...il', f1, timeline.P[k], f1) + q1
+    xf = _mv(f1, timeline.x[k])
+    Pf = _sandwich(f1, timeline.P[k], f1) + q1
     g1, r1 = _moment_steps(xs[k], Ps[k], tau1, comps)
-    xsp = np.einsum('...ij,...j->...i', g1, xs[k])
-    Psp = np.einsum('...ij,...jk,...lk->...il', g1, Ps[k], g1) + r1
+    xsp = _mv(g1, xs[k])
+    Psp = _sandwich(g1, Ps[k], g1) + r1
     nxt = np.minimum(k + 1, K - 1)
     inside = have & (k + 1 < K) & (timeline.segment[nxt] == timeline.segment[k])
     x_out[have], P_out[have] = xsp[have], Psp[have]
@@ -232,9 +248,9 @@ def rts_on_ticks(timeline: StateTimeline, ticks, lag: int | None = None):
         xk, Pk = timeline.x[ki], timeline.P[ki]
         # C = cov(x(t1), x(δ) | fixes to k) = Σ w_j (F_j(t1) P F_j(δ)ᵀ + the noises'
         # covariance + the spread of the components' means), with x(δ)'s prior moments
-        m1 = np.einsum('...ij,...j->...i', f1[inside], xk)
+        m1 = _mv(f1[inside], xk)
         f2, q2 = _moment_steps(xk, Pk, delta, [(w, a[inside], v[inside]) for w, a, v in comps])
-        m2 = np.einsum('...ij,...j->...i', f2, xk)
+        m2 = _mv(f2, xk)
         c = np.zeros(t1.shape + (4, 4))
         for w, a_all, v_all in comps:
             a_in, v_in = a_all[inside], v_all[inside]
@@ -245,20 +261,18 @@ def rts_on_ticks(timeline: StateTimeline, ticks, lag: int | None = None):
                 if v > 0:
                     # a Markov (continuous) model: x(δ) = F(δ − t1) x(t1) + independent
                     # noise, so the noise to t1 and to δ covary as Q(t1) F(δ − t1)ᵀ
-                    cross[rows] = np.einsum('...ij,...kj->...ik',
-                                            process_noise(t1[rows], a, v),
-                                            transition(delta[rows] - t1[rows], v))
+                    cross[rows] = process_noise(t1[rows], a, v) @ np.swapaxes(
+                        transition(delta[rows] - t1[rows], v), -1, -2)
                 else:
                     cross[rows] = _gain_matrix((t1[rows], delta[rows]), a)
-            d1 = np.einsum('...ij,...j->...i', g1_j, xk) - m1
-            d2 = np.einsum('...ij,...j->...i', g2_j, xk) - m2
-            c += w * (np.einsum('...ij,...jk,...lk->...il', g1_j, Pk, g2_j) + cross
-                      + d1[..., :, None] * d2[..., None, :])
-        P_next_prior = np.einsum('...ij,...jk,...lk->...il', f2, Pk, f2) + q2
+            d1 = _mv(g1_j, xk) - m1
+            d2 = _mv(g2_j, xk) - m2
+            c += w * (_sandwich(g1_j, Pk, g2_j) + cross + d1[..., :, None] * d2[..., None, :])
+        P_next_prior = _sandwich(f2, Pk, f2) + q2
         gain = np.linalg.solve(P_next_prior, np.swapaxes(c, -1, -2))
         gain = np.swapaxes(gain, -1, -2)                   # J = C P⁻⁻¹ (P⁻ symmetric)
         dx = xs[kn] - m2
         dP = Ps[kn] - P_next_prior
-        x_out[inside] = xf[inside] + np.einsum('...ij,...j->...i', gain, dx)
-        P_out[inside] = Pf[inside] + np.einsum('...ij,...jk,...lk->...il', gain, dP, gain)
+        x_out[inside] = xf[inside] + _mv(gain, dx)
+        P_out[inside] = Pf[inside] + _sandwich(gain, dP, gain)
     return x_out, P_out
