@@ -12,6 +12,10 @@
 
   (the RTS step with the tick as an extra state; Särkkä, *Bayesian Filtering and Smoothing*,
   2013, §8.2). Ticks after a segment's last fix carry its (smoothed = filtered) prediction.
+  Each step is taken with the motion its state moved by (the prior, then each fitted
+  model) and, for a graze/walk mixture filter, on the moments of the mixture's prior
+  (:func:`_moment_steps`; the Gaussian RTS smoother, Särkkä 2013, §9.1), so the smoother
+  assumes between fixes what the filter did.
 * :func:`fixed_lag_timeline` — the fixed-lag smoother: each state given the next ``lag``
   fixes only (a delay of ``lag`` fixes instead of the whole recording), carried to the
   ticks the same way.
