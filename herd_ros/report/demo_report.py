@@ -161,7 +161,6 @@ def seen_through_collars(times, fix_times, fix_positions) -> np.ndarray:
     :func:`seen_at_fixes`."""
     import pandas as pd
 
-    from herd_ros.errors import HerdInputError
     from herd_ros.ingest.pipeline import planar_fixes, trajectory_from_fixes
     times = np.asarray(times, dtype=float)
     out = np.full((len(times), len(fix_times), 2), np.nan)
@@ -174,12 +173,8 @@ def seen_through_collars(times, fix_times, fix_positions) -> np.ndarray:
             continue
         fixes = planar_fixes(pd.DataFrame({'time': ft[ok], 'agent': 'robot',
                                            'x': fp[ok, 0], 'y': fp[ok, 1]}))
-        try:
-            track = trajectory_from_fixes(fixes, None, trim=False, stale_after=1e12,
-                                          reinit_after_gap=1e12, max_stamp_ahead_s=np.inf)
-        except HerdInputError:          # no track to see it through: held at the fixes
-            out[:, k] = seen_at_fixes(times, [ft[ok]], [fp[ok]])[:, 0]
-            continue
+        track = trajectory_from_fixes(fixes, None, trim=False, stale_after=1e12,
+                                      reinit_after_gap=1e12, max_stamp_ahead_s=np.inf)
         x, _, _, initialised = track.meta['timelines']['robot'].at(times)
         out[initialised, k] = x[initialised, :2]
     return out
