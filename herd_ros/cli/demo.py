@@ -107,8 +107,8 @@ def run(args) -> int:
     print(f'\ndemo done in {time.perf_counter() - t0:.0f} s: {summary["herd_snapshots"]} herd '
           f'snapshots, {summary["model_updates"]} model updates, {summary["robot_samples"]} '
           f'robot samples. Herd statistics, animals vs robots (mean over the herd; each robot '
-          f'seen like its animal: where the animal has a herd pose, through its animal\'s '
-          f'collar tracking; in brackets the robots\' own positions at the ticks):')
+          f'seen like its animal: where the animal has a herd pose, at the animal\'s fixes; '
+          f'in brackets the robots\' own positions at the ticks):')
     cows, robots = summary['cows'], summary['robots']
     own = summary.get('robots_continuous') or {}
     for key in ('mean_distance', 'std_distance', 'mean_speed', 'std_speed'):

@@ -153,7 +153,7 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     from herd_ros.nodes.fleet_sim import FleetSim
     from herd_ros.nodes.gps_ingest import GpsIngest
     from herd_ros.nodes.replay import Replay
-    from herd_ros.report.demo_report import seen_through_collars, write_demo_report
+    from herd_ros.report.demo_report import seen_at_fixes, write_demo_report
     from herd_ros.trajectory import HerdTrajectory
 
     # absolute: the nodes resolve a relative model/checkpoint path under their data
@@ -261,7 +261,7 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
         param_times, thetas = list(recorder.param_times), list(recorder.params)
         pred_times = np.asarray(recorder.pred_times)
         preds = np.asarray(recorder.preds).reshape(-1, len(agents), 2)
-        # each robot as its animal's track sees it: at the animal's fixes, tracked
+        # each robot where its animal's track was informed: at the animal's fixes
         fix_times, fix_xy = [], []
         for k, a in enumerate(agents[:len(robots)]):          # robot k follows animal k
             ft = np.unique(np.asarray(recorder.fix_times.get(a, []), dtype=float))
@@ -274,7 +274,7 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
         active &= times > first_model_t
     robots_traj = HerdTrajectory(times[active], robots, rob[active])
     at_fixes = HerdTrajectory(times[active], robots,
-                              seen_through_collars(times, fix_times, fix_xy)[active])
+                              seen_at_fixes(times, fix_times, fix_xy)[active])
     from herd_ros.trajectory import write_trajectory_csv
     predictions = HerdTrajectory(pred_times, agents, preds)
     write_trajectory_csv(out / 'herd_poses.csv', cows)

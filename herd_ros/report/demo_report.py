@@ -145,41 +145,6 @@ def seen_at_fixes(times, fix_times, fix_positions) -> np.ndarray:
     return out
 
 
-def seen_through_collars(times, fix_times, fix_positions) -> np.ndarray:
-    """Each robot as its animal's collar track sees the animal: its positions at its
-    animal's accepted fix stamps, as fixes, through the ingest's default collar tracking
-    (each collar's motion model fitted, the graze/walk mixture:
-    :func:`~herd_ros.ingest.pipeline.trajectory_from_fixes`), read at herd tick t as the
-    track's causal estimate at t (NaN before the first fix).
-
-    A duty-cycled track is informed when a fix comes in and, between fixes, carries the
-    collar's fitted motion on (a fitted velocity moves it; a random walk holds it), so its
-    speed and the spread of its speed at the clock are the collar's sampling and model as
-    much as the animal's motion. A robot seen through the same tracking is compared like
-    with like (:func:`seen_at_fixes` holds it still between fixes instead); at 1 Hz fixes
-    this is the robot itself to centimetres. Arguments and result as
-    :func:`seen_at_fixes`."""
-    import pandas as pd
-
-    from herd_ros.ingest.pipeline import planar_fixes, trajectory_from_fixes
-    times = np.asarray(times, dtype=float)
-    out = np.full((len(times), len(fix_times), 2), np.nan)
-    for k, (ft, fp) in enumerate(zip(fix_times, fix_positions)):
-        ft = np.asarray(ft, dtype=float)
-        fp = np.asarray(fp, dtype=float).reshape(-1, 2)
-        ok = np.isfinite(ft) & np.isfinite(fp).all(axis=1)
-        if ok.sum() < 2:
-            out[:, k] = seen_at_fixes(times, [ft[ok]], [fp[ok]])[:, 0]
-            continue
-        fixes = planar_fixes(pd.DataFrame({'time': ft[ok], 'agent': 'robot',
-                                           'x': fp[ok, 0], 'y': fp[ok, 1]}))
-        track = trajectory_from_fixes(fixes, None, trim=False, stale_after=1e12,
-                                      reinit_after_gap=1e12, max_stamp_ahead_s=np.inf)
-        x, _, _, initialised = track.meta['timelines']['robot'].at(times)
-        out[initialised, k] = x[initialised, :2]
-    return out
-
-
 #: a robot passes when each of its statistics is within this of its animal's (issue 30)
 PASS_BAR = 0.30
 
@@ -214,10 +179,9 @@ def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
 
     The robots' statistics (``robots``, the verdict) see each robot like its animal: only
     where the animal has a herd pose (:func:`seen_like_animals`) and, given
-    ``robots_at_fixes`` (the robots on the same ticks seen through their animals' collar
-    tracking, :func:`seen_through_collars`), as its animal's track sees the animal;
-    ``robots_continuous`` keeps the robots' own positions at the ticks (where the animal
-    has a pose), ``robots_all_samples`` every sample."""
+    ``robots_at_fixes`` (the robots on the same ticks, :func:`seen_at_fixes`), where its
+    animal's track was informed; ``robots_continuous`` keeps the robots' own positions at
+    the ticks (where the animal has a pose), ``robots_all_samples`` every sample."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cows, robots = _finite_rows(cows), _finite_rows(robots)
