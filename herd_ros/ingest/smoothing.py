@@ -143,10 +143,19 @@ def _moment_steps(x, P, tau, comps):
     With one component, ``F`` and ``Q`` themselves. The smoothers below are the Gaussian
     RTS smoother on these moments (Särkkä 2013, §9.1): with them an RTS pass over a
     mixture filter's states agrees with what the filter assumed between fixes."""
-    if len(comps) == 1:
-        _, a, v = comps[0]
-        return _steps(tau, a, v)
-    parts = [(w, *_steps(tau, a, v)) for w, a, v in comps]
+    return _moments(x, P, _component_steps(tau, comps))
+
+
+def _component_steps(tau, comps):
+    """[(w_j, F_j (M, 4, 4), Q_j (M, 4, 4))] of the motion ``comps`` over ``tau``."""
+    return [(w, *_steps(tau, a, v)) for w, a, v in comps]
+
+
+def _moments(x, P, parts):
+    """:func:`_moment_steps` from the components' steps ``parts``
+    (:func:`_component_steps`)."""
+    if len(parts) == 1:
+        return parts[0][1], parts[0][2]
     Fbar = sum(w * F for w, F, _ in parts)
     x = np.asarray(x, dtype=float)[..., :, None]
     mean = Fbar @ x
@@ -236,11 +245,12 @@ def rts_on_ticks(timeline: StateTimeline, ticks, lag: int | None = None):
     k = np.where(have, k, 0)
     tau1 = ticks - timeline.t[k]
     comps = _components(timeline, k)    # the motion that carries state k to the tick
+    to_tick = _component_steps(tau1, comps)
     # the filtered prediction from fix k to the tick (and the plain answer after a segment)
-    f1, q1 = _moment_steps(timeline.x[k], timeline.P[k], tau1, comps)
+    f1, q1 = _moments(timeline.x[k], timeline.P[k], to_tick)
     xf = _mv(f1, timeline.x[k])
     Pf = _sandwich(f1, timeline.P[k], f1) + q1
-    g1, r1 = _moment_steps(xs[k], Ps[k], tau1, comps)
+    g1, r1 = _moments(xs[k], Ps[k], to_tick)
     xsp = _mv(g1, xs[k])
     Psp = _sandwich(g1, Ps[k], g1) + r1
     nxt = np.minimum(k + 1, K - 1)
@@ -252,14 +262,14 @@ def rts_on_ticks(timeline: StateTimeline, ticks, lag: int | None = None):
         xk, Pk = timeline.x[ki], timeline.P[ki]
         # C = cov(x(t1), x(δ) | fixes to k) = Σ w_j (F_j(t1) P F_j(δ)ᵀ + the noises'
         # covariance + the spread of the components' means), with x(δ)'s prior moments
+        comps_in = [(w, a[inside], v[inside]) for w, a, v in comps]
+        to_next = _component_steps(delta, comps_in)
         m1 = _mv(f1[inside], xk)
-        f2, q2 = _moment_steps(xk, Pk, delta, [(w, a[inside], v[inside]) for w, a, v in comps])
+        f2, q2 = _moments(xk, Pk, to_next)
         m2 = _mv(f2, xk)
         c = np.zeros(t1.shape + (4, 4))
-        for w, a_all, v_all in comps:
-            a_in, v_in = a_all[inside], v_all[inside]
-            g1_j, _ = _steps(t1, a_in, v_in)
-            g2_j, _ = _steps(delta, a_in, v_in)
+        for (w, a_in, v_in), (_, g1_all, _), (_, g2_j, _) in zip(comps_in, to_tick, to_next):
+            g1_j = g1_all[inside]
             cross = np.empty(t1.shape + (4, 4))
             for a, v, rows in _by_model(a_in, v_in):
                 if v > 0:
