@@ -91,3 +91,115 @@ def test_a_quiet_collar_holds_the_clock_for_the_grace_then_a_poll_moves_it():
     got = [snap.time for k in range(1, 60)
            for snap in s0.push(np.array([0]), fixes([float(k)]), 100.0).snapshots]
     assert got[-1] == 58.0 and not s0.poll(200.0).snapshots
+
+
+# -- refits in the background (the node's batch timer) -------------------------------------
+def fitted_stream(n, **kw):
+    from herd_ros.ingest.pipeline import DEFAULT_WALK_ACCEL_STD, refit_config, with_walk
+    params = with_walk(FilterParams(stale_after=60.0, default_position_std=3.0),
+                       DEFAULT_WALK_ACCEL_STD)
+    return FixStream([f'c{i}' for i in range(n)], 10.0, params, refit_config(params),
+                     datum=(LAT0, LON0, 0.0), **kw)
+
+
+def wandering_collars(n, k, seed=1):
+    """(collars, fixes) of ``n`` collars wandering for ``k`` fixes each, 5-15 s apart,
+    interleaved in stamp order; collar 1 has a burst 800 m off."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for i in range(n):
+        t = 1000.0 + np.cumsum(rng.uniform(5, 15, k))
+        p = np.cumsum(rng.normal(0, 2, (k, 2)), 0) + rng.normal(0, 3, (k, 2))
+        if i == 1:
+            p[50:54] += 800.0
+        rows += [(tt, i, x, y) for tt, (x, y) in zip(t, p)]
+    rows.sort()
+    t = np.array([r[0] for r in rows])
+    xy = np.array([r[2:] for r in rows])
+    m = len(t)
+    return np.array([r[1] for r in rows]), NavSatFixes(
+        [''] * m, t, np.zeros(m, np.int64), LAT0 + xy[:, 1] / M_PER_DEG_LAT,
+        LON0 + xy[:, 0] / (M_PER_DEG_LAT * math.cos(math.radians(LAT0))), np.zeros(m),
+        np.zeros((m, 9)), np.zeros(m, np.int64))
+
+
+def pushed(s, collars, fx, sizes, collect_every=0):
+    """Push the fixes in batches of ``sizes`` (cycled); every state put out, and every
+    snapshot (time, positions) — after collecting every refit and flushing the clock."""
+    from herd_ros.io.cdr import take_fixes
+    states, snaps = {}, []
+
+    def take(out):
+        for idx, stamp, x, _ in out.odometry:
+            for i, t, row in zip(idx.tolist(), stamp.tolist(), x.tolist()):
+                states[i, t] = row
+        snaps.extend((sn.time, sn.positions) for sn in out.snapshots)
+
+    k = j = 0
+    while k < len(collars):
+        sel = np.arange(k, min(k + sizes[j % len(sizes)], len(collars)))
+        take(s.push(collars[sel], take_fixes(fx, sel), 100.0 + j))
+        j += 1
+        k = sel[-1] + 1
+        if collect_every and j % collect_every == 0:
+            take(s.collect(100.0 + j))
+    take(s.collect(100.0 + j, wait=True))
+    snaps.extend((t, p) for t, p in ((sn.time, sn.positions) for sn in s.clock.flush()))
+    return states, snaps
+
+
+def test_refits_in_the_background_give_the_synchronous_states_and_snapshots():
+    # the synchronous stream is the offline path's (test_gps_ingest_node); in the background
+    # every fix must still be filtered by the model its collar had at that fix offline
+    collars, fx = wandering_collars(5, 120)
+    ref_states, ref_snaps = pushed(fitted_stream(5), collars, fx, [7])
+    assert len(ref_states) > 500 and len(ref_snaps) > 100
+    for sizes, every in (([7, 1, 30, 3], 3), ([1], 1), ([400], 0)):
+        s = fitted_stream(5, refit_in_background=True)
+        states, snaps = pushed(s, collars, fx, sizes, every)
+        assert states == ref_states, sizes
+        assert s.refitter.refits == 15 and s.fixes_held_for_refits == 0
+        assert [t for t, _ in snaps] == [t for t, _ in ref_snaps]
+        assert all(np.array_equal(a, b, equal_nan=True)
+                   for (_, a), (_, b) in zip(snaps, ref_snaps))
+
+
+def test_a_refit_in_the_background_holds_only_its_own_collars_fixes(monkeypatch):
+    import threading
+
+    from herd_ros.ingest.motion_refit import RefitJob
+    release, started = threading.Event(), threading.Event()
+    run = RefitJob.run
+
+    def slow(job):
+        started.set()
+        assert release.wait(30)
+        return run(job)
+
+    monkeypatch.setattr(RefitJob, 'run', slow)
+    from herd_ros.io.cdr import take_fixes
+    collars, fx = wandering_collars(2, 60)
+    keep = (collars == 0) | (np.cumsum(collars == 1) % 2 == 0)   # collar 1 at half the rate
+    collars, fx = collars[keep], take_fixes(fx, keep)
+    s = fitted_stream(2, refit_in_background=True)
+    # the first refit is due after a collar's 20th fix: collar a reaches it first, b later
+    twentieth = [int(np.flatnonzero(np.cumsum(collars == i) == 20)[0]) for i in (0, 1)]
+    a = int(np.argmin(twentieth))
+    b = 1 - a
+    s.push(collars[:twentieth[a] + 1], take_fixes(fx, np.arange(twentieth[a] + 1)), 100.0)
+    assert started.wait(30) and s.background.pending[a] and not s.background.pending[b]
+    # the next fixes, up to b's own refit point: a's wait, b's are filtered
+    nxt = np.arange(twentieth[a] + 1, twentieth[b])
+    out = s.push(collars[nxt], take_fixes(fx, nxt), 101.0)
+    own = collars[nxt] == a
+    got = np.concatenate([idx for idx, *_ in out.odometry])
+    assert own.any() and (~own).any()
+    assert s.fixes_held_for_refits == own.sum()
+    assert a not in got and (got == b).sum() == (~own).sum()     # b: every fix accepted
+    assert s.clock.waiting[a] and not s.clock.waiting[b]
+    held_from = fx.stamp[nxt][own].min()
+    assert all(sn.time <= held_from for sn in out.snapshots)   # no tick past a waiting fix
+    release.set()
+    rest = s.collect(102.0, wait=True)
+    assert s.fixes_held_for_refits == 0 and not s.clock.waiting.any()
+    assert (np.concatenate([idx for idx, *_ in rest.odometry]) == a).sum() == own.sum()

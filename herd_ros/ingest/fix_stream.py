@@ -34,11 +34,12 @@ import numpy as np
 import pandas as pd
 
 from herd_ros.errors import HerdInputError
-from herd_ros.ingest.collar_bank import OUTCOMES, CollarBank
+from herd_ros.ingest.collar_bank import OUTCOMES, CollarBank, FixBatch
 from herd_ros.ingest.collar_filter import COUNTERS, STATUS_NO_FIX, FilterParams
 from herd_ros.ingest.geodesy import geodetic_to_enu
 from herd_ros.ingest.herd_clock import BatchHerdClock
-from herd_ros.ingest.motion_refit import MotionRefitter, fix_variance, process_with_refits
+from herd_ros.ingest.motion_refit import (BackgroundRefits, MotionRefitter, after_first_due,
+                                          fix_variance, process_observed, process_with_refits)
 from herd_ros.ingest.pipeline import choose_datum, with_walk
 from herd_ros.ingest.stamp_guards import clock_jumps, future_stamps
 from herd_ros.io.cdr import NavSatFixes, concat_fixes, no_fixes, take_fixes
@@ -81,16 +82,23 @@ class FixStream:
         max_stamp_ahead_s, max_clock_jump_s: the two guards (s).
         silence_grace_s: wall time (s) a collar must also have sent nothing for before the
             herd clock counts it as silent (:class:`BatchHerdClock`'s ``grace_s``).
+        refit_in_background: run the refits in a worker thread
+            (:class:`~herd_ros.ingest.motion_refit.BackgroundRefits`; the same states,
+            a collar's fixes wait only for its own refit): then :meth:`collect` must be
+            called now and then (the node's batch timer) and with ``wait`` at the end.
     """
 
     def __init__(self, agents, dt: float, params: FilterParams, refit=None, datum=None,
                  max_stamp_ahead_s: float = math.inf, max_clock_jump_s: float = math.inf,
-                 silence_grace_s: float = 0.0):
+                 silence_grace_s: float = 0.0, refit_in_background: bool = False):
         self.agents, self.dt, self.params = list(agents), float(dt), params
         self.silence_grace_s = float(silence_grace_s)
         self.max_stamp_ahead_s, self.max_clock_jump_s = max_stamp_ahead_s, max_clock_jump_s
         self.bank = CollarBank(len(self.agents), params)
         self.refitter = MotionRefitter(len(self.agents), refit) if refit is not None else None
+        self.background = (BackgroundRefits(self.bank, self.refitter)
+                           if self.refitter is not None and refit_in_background else None)
+        self._held: list[tuple] = []    # fixes waiting for their collar's refit (arrays)
         self.clock = self._new_clock()
         self.datum = datum
         self._pending: list[tuple] = []             # (collars, NavSatFixes) held for the datum
@@ -155,7 +163,7 @@ class FixStream:
     # -- fixes ------------------------------------------------------------------------
     def push(self, collars: np.ndarray, fixes: NavSatFixes, now: float) -> StreamOutput:
         """Fixes of ``collars`` (arrival order), received at wall time ``now``."""
-        out = StreamOutput()
+        out = self.collect(now) if self.background is not None else StreamOutput()
         future = np.flatnonzero(future_stamps(fixes.stamp, now, self.max_stamp_ahead_s))
         if len(future):
             for k in future.tolist():
@@ -174,8 +182,9 @@ class FixStream:
 
     def poll(self, now: float) -> StreamOutput:
         """No fix since the last :meth:`push`, wall time ``now``: the herd snapshots that
-        waited only for a quiet collar's ``silence_grace_s``."""
-        out = StreamOutput()
+        waited only for a quiet collar's ``silence_grace_s`` (and the fixes that waited for
+        a refit now finished)."""
+        out = self.collect(now) if self.background is not None else StreamOutput()
         if self.silence_grace_s > 0:
             snaps = self.clock.poll(now)
             out.snapshots.extend(snaps)
@@ -193,12 +202,87 @@ class FixStream:
             batch = self.bank.process(idx, stamp, e, n, fixes.status,
                                       self.bank.measurement_covariances(fixes.cov_type,
                                                                         fixes.cov, idx))
-            motion = None
-        else:
-            var = fix_variance(fixes.cov_type, fixes.cov[:, 0], fixes.cov[:, 4],
-                               self.params.position_std_floor)
-            batch, motion = process_with_refits(self.bank, self.refitter, idx, stamp, e, n,
-                                                fixes.status, fixes.cov_type, fixes.cov, var)
+            self._outcomes(idx, stamp, batch, None, out, now)
+            return
+        var = fix_variance(fixes.cov_type, fixes.cov[:, 0], fixes.cov[:, 4],
+                           self.params.position_std_floor)
+        rows = (idx, stamp, e, n, fixes.status, fixes.cov_type, fixes.cov, var)
+        if self.background is not None:
+            self._filter_deferring(rows, out, now)
+            return
+        batch, motion = process_with_refits(self.bank, self.refitter, *rows)
+        self._outcomes(idx, stamp, batch, motion, out, now)
+
+    # -- refits in the background -------------------------------------------------------
+    def collect(self, now: float, wait: bool = False) -> StreamOutput:
+        """The refits finished since the last call (every one with ``wait``: the end of
+        data) put in the bank, and the fixes that waited for them filtered."""
+        out = StreamOutput()
+        refits = self.background
+        if refits is None:
+            return out
+        while True:
+            failures = refits.failures
+            freed = refits.finish(wait)
+            if refits.failures > failures:
+                out.log.append(('warn', f'a motion refit failed ({refits.last_failure}): '
+                                        f'its collars keep their models'))
+            if not freed or not self._held:
+                break
+            held = _concat_rows(self._held)
+            self._held = []
+            free = ~refits.pending[held[0]]
+            if not free.all():
+                self._held.append(_take_rows(held, ~free))
+            if free.any():
+                self._filter_deferring(_take_rows(held, free), out, now)
+            if not wait:
+                break
+        return out
+
+    @property
+    def refits_unfinished(self) -> bool:
+        """Whether refits run in the background or fixes wait for them."""
+        return self.background is not None and (bool(self._held) or self.background.busy)
+
+    @property
+    def fixes_held_for_refits(self) -> int:
+        """Fixes waiting for their collar's refit (``refit_in_background``)."""
+        return sum(len(r[0]) for r in self._held)
+
+    def _filter_deferring(self, rows, out: StreamOutput, now):
+        """:meth:`_filter` with the refits in the background: the fixes of a collar whose
+        refit runs, and those after a refit point of their collar, wait for the refit
+        (:meth:`collect`); the others are filtered now."""
+        refits = self.background
+        while len(rows[0]):
+            hold = refits.pending[rows[0]]
+            go = np.flatnonzero(~hold)
+            due = self.refitter.due(rows[0][go])
+            later = after_first_due(rows[0][go], due)
+            hold[go[later]] = True
+            go, due = go[~later], due[~later]
+            self.clock.waiting[rows[0][hold]] = True    # not silent: their fixes are here
+            if len(go):
+                part = _take_rows(rows, go)
+                m = len(go)
+                batch = FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
+                                 np.empty((m, 4, 4)), np.empty(m, np.int64))
+                motion = np.empty((m, 2))
+                process_observed(self.bank, self.refitter, *part, batch, motion)
+                self._outcomes(part[0], part[1], batch, motion, out, now)
+                refits.submit(np.unique(part[0][due]))
+            rows = _take_rows(rows, hold)
+            wait = refits.pending[rows[0]]
+            if wait.any():
+                self._held.append(_take_rows(rows, wait))
+                rows = _take_rows(rows, ~wait)
+        self.clock.waiting[:] = False
+        for r in self._held:
+            self.clock.waiting[r[0]] = True
+
+    def _outcomes(self, idx, stamp, batch, motion, out: StreamOutput, now):
+        """Odometry, rejections and herd snapshots of a filtered batch."""
         accepted = batch.accepted
         done = np.flatnonzero(accepted)
         out.odometry.append((idx[done], stamp[done], batch.x[done], batch.P[done]))
@@ -230,7 +314,9 @@ class FixStream:
                 out.log.append(('warn', f'data time jumped {stamp[j] - before[j]:.0f} s '
                                         f'(> max_clock_jump_s): herd clock restarted at '
                                         f'{stamp[j]:.3f}'))
+                waiting = self.clock.waiting
                 self.clock = self._new_clock()
+                self.clock.waiting[:] = waiting
                 start = j
 
     # -- datum from the first valid fix -----------------------------------------------
@@ -297,9 +383,22 @@ class FixStream:
                 'fixes': int(totals[:-1].sum()) + sum(self.rejected_future.values()),
                 'accepted': int(totals[0]), 'stale_collars': stale_count,
                 'clock_restarts': self.clock_restarts,
+                'refits_in_flight': (self.background.in_flight if self.background is not None
+                                     else 0),
+                'fixes_held_for_refits': self.fixes_held_for_refits,
                 'fixes_waiting_for_datum': self.fixes_waiting_for_datum,
                 'datum': ('waiting for the first valid fix' if self.datum is None
                           else ', '.join(f'{v:.9f}' for v in self.datum))}
+
+
+def _take_rows(rows: tuple, keep) -> tuple:
+    """The rows ``keep`` (mask or indices) of a tuple of per-fix arrays."""
+    return tuple(a[keep] for a in rows)
+
+
+def _concat_rows(parts: list) -> tuple:
+    """Tuples of per-fix arrays, one after the other."""
+    return tuple(np.concatenate(cols) for cols in zip(*parts))
 
 
 def collar_frames(agents) -> dict:

@@ -394,6 +394,7 @@ class BatchHerdClock:
         self.reported = np.full(n, -np.inf)
         self.grace_s = float(grace_s)
         self.received = np.full(n, -np.inf)     # wall time of each collar's latest fix
+        self.waiting = np.zeros(n, bool)        # fixes arrived, not yet filtered: not silent
         self.now = -math.inf                    # wall time of the latest batch or poll
         self.herd_time = -math.inf
         self._next_k: int | None = None
@@ -485,6 +486,7 @@ class BatchHerdClock:
                   > self.stale_after)
         if self.grace_s > 0:
             silent &= self.now - self.received >= self.grace_s
+        silent &= ~self.waiting
         return bool(np.all((self.reported >= tick) | (silent & (tick < self.herd_time))))
 
     _emit = HerdClock._emit     # the same tick loop over this class' _ready and _snapshot

@@ -129,21 +129,150 @@ class MotionRefitter:
     def refit(self, collars) -> dict:
         """Refit ``collars`` (those with at least ``min_fixes`` accepted in their window);
         {collar: MotionFit} of the new models."""
+        job = self.prepare(collars)
+        return self.accept(job, job.run()) if job is not None else {}
+
+    def prepare(self, collars) -> RefitJob | None:
+        """The refit of ``collars`` as a job that reads nothing of this refitter (copies of
+        the windows and starting points, the configuration of now); None if no collar has
+        the ``min_fixes`` a fit needs."""
         collars = [int(i) for i in collars if self.count[int(i)] >= self.config.min_fixes]
         if not collars:
-            return {}
-        fits = fit_motion([self.window(i) for i in collars],
-                          min_fixes=self.config.min_fixes, max_fixes=self.config.window,
-                          position_std_floor=self.config.std_floor, walk=self.config.walk,
-                          start=[self.fits[i] for i in collars])
+            return None
+        c = self.config
+        return RefitJob(collars, [self.window(i) for i in collars],
+                        [self.fits[i] for i in collars], c.min_fixes, c.window, c.std_floor,
+                        c.walk)
+
+    def accept(self, job: RefitJob, fits) -> dict:
+        """Keep the models ``fits`` that ``job`` gave (a collar's 'prior' keeps its model);
+        {collar: MotionFit} of the new ones."""
         out = {}
-        for i, f in zip(collars, fits):
+        for i, f in zip(job.collars, fits):
             if f.model == 'prior':
                 continue
             self.fits[i] = f
             out[i] = f
         self.refits += len(out)
         return out
+
+
+@dataclass
+class RefitJob:
+    """Refits to run (:meth:`MotionRefitter.prepare`): ``collars``, their ``windows``
+    (t, z, r) and previous fits ``start``, and the fit's settings."""
+
+    collars: list
+    windows: list
+    start: list
+    min_fixes: int
+    max_fixes: int
+    std_floor: float
+    walk: tuple | None
+
+    @property
+    def settings(self) -> tuple:
+        """What the fit does with the windows (jobs alike in this can run as one)."""
+        return (self.min_fixes, self.max_fixes, self.std_floor, self.walk)
+
+    @classmethod
+    def merged(cls, jobs) -> RefitJob:
+        """Jobs of the same :attr:`settings` as one."""
+        if len(jobs) == 1:
+            return jobs[0]
+        return cls([i for j in jobs for i in j.collars], [w for j in jobs for w in j.windows],
+                   [f for j in jobs for f in j.start], *jobs[0].settings)
+
+    def run(self) -> list:
+        """The fits (:func:`~herd_ros.ingest.motion_fit.fit_motion`), one per collar."""
+        return fit_motion(self.windows, min_fixes=self.min_fixes, max_fixes=self.max_fixes,
+                          position_std_floor=self.std_floor, walk=self.walk,
+                          start=self.start)
+
+
+class BackgroundRefits:
+    """The live node's refits off the fix path: a refit due after a collar's n-th fix runs
+    in a worker thread while the other collars' fixes go on being filtered; the collar's
+    own later fixes wait (:class:`~herd_ros.ingest.fix_stream.FixStream` holds them) until
+    its new model is in the bank, so every fix is filtered by the model
+    :func:`process_with_refits` would have given it — the same states as offline, without
+    a burst of refits (a herd of collars switched on together reaches its 20th fix
+    together) stopping every collar's fixes.
+
+    One fit runs at a time; the refits that come due meanwhile wait and then run together
+    in one vectorised call (a collar's fit depends on its own window alone, so grouping
+    changes nothing computed). The compiled kernels release the GIL (and split over
+    :mod:`~herd_ros.ingest.collar_threads`), so the node's thread keeps working.
+    """
+
+    def __init__(self, bank, refitter: MotionRefitter):
+        from concurrent.futures import ThreadPoolExecutor
+        self.bank, self.refitter = bank, refitter
+        self.pending = np.zeros(refitter.n, bool)       # a refit queued or running
+        self._queued: list[RefitJob] = []
+        self._running: tuple | None = None              # (RefitJob, Future)
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix='herd_refit')
+        self.failures = 0
+        self.last_failure = ''
+
+    def submit(self, collars) -> np.ndarray:
+        """Queue the refits of ``collars`` (their windows as they are now); the collars now
+        pending (those with the fixes a fit needs)."""
+        job = self.refitter.prepare(collars)
+        if job is None:
+            return np.zeros(0, np.int64)
+        self._queued.append(job)
+        started = np.asarray(job.collars, np.int64)
+        self.pending[started] = True
+        self._start()
+        return started
+
+    def _start(self):
+        """With no fit running: the queued refits of the first one's settings, as one."""
+        if self._running is not None or not self._queued:
+            return
+        key = self._queued[0].settings
+        same = [j for j in self._queued if j.settings == key]
+        self._queued = [j for j in self._queued if j.settings != key]
+        job = RefitJob.merged(same)
+        self._running = (job, self._pool.submit(job.run))
+
+    def finish(self, wait: bool = False) -> int:
+        """Put the finished refits' models in the bank (every refit with ``wait``); the
+        number of collars freed. A refit that failed leaves its collars' models as they were
+        (counted in ``failures``)."""
+        freed = 0
+        while self._running is not None:
+            job, future = self._running
+            if not (wait or future.done()):
+                break
+            try:
+                fits = future.result()
+            except Exception as exc:  # noqa: BLE001 - a failed fit must not lose fixes
+                self.failures += 1
+                self.last_failure = f'{type(exc).__name__}: {exc}'
+            else:
+                for i, fit in self.refitter.accept(job, fits).items():
+                    apply_fit(self.bank, i, fit)
+            self.pending[job.collars] = False
+            freed += len(job.collars)
+            self._running = None
+            self._start()
+        return freed
+
+    @property
+    def busy(self) -> bool:
+        """Whether a refit is queued or running."""
+        return self._running is not None
+
+    @property
+    def in_flight(self) -> int:
+        """Collars whose refit is queued or running."""
+        return int(self.pending.sum())
+
+    def close(self):
+        """Stop the worker (after the refit running)."""
+        self._pool.shutdown(wait=True)
 
 
 def fix_variance(cov_type, cov_ee, cov_nn, floor: float) -> np.ndarray:
@@ -213,14 +342,38 @@ def process_with_refits(bank, refitter: MotionRefitter, collar, stamp, east, nor
             continue
         sl = slice(start, stop)
         c = collar[sl]
-        motion[sl, 0] = bank.accel_std[c]
-        motion[sl, 1] = bank.velocity_tau[c]
         part = FixBatch(out.outcome[sl], out.mahalanobis2[sl], out.x[sl], out.P[sl],
                         out.segment[sl])
-        R = bank.measurement_covariances(cov_type[sl], cov9[sl], c)
-        bank.process(c, stamp[sl], east[sl], north[sl], status[sl], R, out=part)
-        refitter.observe(c, stamp[sl], east[sl], north[sl], var[sl], part.accepted)
+        process_observed(bank, refitter, c, stamp[sl], east[sl], north[sl], status[sl],
+                         cov_type[sl], cov9[sl], var[sl], part, motion[sl])
         for i, fit in refitter.refit(np.unique(c[due[sl]])).items():
             apply_fit(bank, i, fit)
         start = stop
     return out, motion
+
+
+def process_observed(bank, refitter: MotionRefitter, collar, stamp, east, north, status,
+                     cov_type, cov9, var, out: FixBatch, motion):
+    """:meth:`CollarBank.process` of fixes with no refit due before any collar's last one
+    among them, each counted and (accepted) put in its window: the states in ``out``, the
+    model each fix's collar had in ``motion`` (M, 2) (see :func:`process_with_refits`)."""
+    motion[:, 0] = bank.accel_std[collar]
+    motion[:, 1] = bank.velocity_tau[collar]
+    R = bank.measurement_covariances(cov_type, cov9, collar)
+    bank.process(collar, stamp, east, north, status, R, out=out)
+    refitter.observe(collar, stamp, east, north, var, out.accepted)
+
+
+def after_first_due(collar, due) -> np.ndarray:
+    """(M,) whether each fix of a batch comes after a refit point of its own collar in the
+    batch (those must wait for the refit)."""
+    collar = np.asarray(collar, dtype=np.int64)
+    order = np.argsort(collar, kind='stable')
+    d = np.asarray(due, bool)[order].astype(np.int64)
+    c = collar[order]
+    before = np.cumsum(d) - d                       # refit points strictly before, overall
+    start = np.flatnonzero(np.r_[True, c[1:] != c[:-1]]) if len(c) else np.zeros(0, int)
+    base = np.repeat(before[start], np.diff(np.r_[start, len(c)]))
+    out = np.empty(len(c), bool)
+    out[order] = before - base > 0
+    return out

@@ -65,9 +65,11 @@ class GpsIngest(Node):
                              reliability=qos_profile_sensor_data.reliability,
                              durability=qos_profile_sensor_data.durability)
         FixStream.warm_up()
+        # with a batch timer the refits run in the background (it collects them)
         self.stream = FixStream(cfg.agents, cfg.dt, cfg.filter_params, cfg.refit, cfg.datum,
                                 cfg.max_stamp_ahead_s, cfg.max_clock_jump_s,
-                                cfg.silence_grace_s)
+                                cfg.silence_grace_s,
+                                refit_in_background=cfg.batch_period_s > 0)
         self._frames = collar_frames(cfg.agents)      # frame_id -> collar (fix_topic)
         self._inbox: list[tuple] = []     # (collar index, -1 on fix_topic; serialized fix)
         self._diagnostics_job, self._diagnostics_next = None, 0
@@ -131,17 +133,25 @@ class GpsIngest(Node):
             self._publish(out)
 
     def on_shutdown(self):
-        """Stop signal: filter and publish the fixes still waiting for their batch."""
+        """Stop signal: filter and publish the fixes still waiting for their batch, and
+        those waiting for a refit running in the background."""
         self.drain()
+        if self.stream.background is not None:
+            self._publish(self.stream.collect(time.time(), wait=True))
+            self.stream.background.close()
 
     def drain(self):
         """Decode the fixes received since the last batch, push them into the stream and
-        publish what it gives back; then a step of the diagnostics being built, if any."""
-        if self._inbox:
+        publish what it gives back (with no new fix: what the refits finished in the
+        background released); then a step of the diagnostics being built, if any."""
+        if self._inbox or self.stream.refits_unfinished:
             inbox, self._inbox = self._inbox, []
             try:
-                collars, fixes = self._decode(inbox)
-                out = self.stream.push(collars, fixes, time.time())
+                if inbox:
+                    collars, fixes = self._decode(inbox)
+                    out = self.stream.push(collars, fixes, time.time())
+                else:
+                    out = self.stream.collect(time.time())
                 self._publish(out)
             except Exception as exc:   # a bad batch must never stop the node
                 self.message_errors += len(inbox)
