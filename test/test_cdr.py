@@ -11,8 +11,8 @@ from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import NavSatFix
 
-from herd_ros.io.cdr import (CdrError, OdometryEncoder, decode_navsatfix, decode_navsatfixes,
-                             encode_pose_array, stamp_parts)
+from herd_ros.io.cdr import (BATCH_DECODE_MIN, CdrError, OdometryEncoder, decode_navsatfix,
+                             decode_navsatfixes, encode_pose_array, stamp_parts)
 
 NAMES = ['', 'a', 'ab', 'abc', 'abcd', 'cow_1', 'cow_0001_gps', 'c' * 13, 'ünïcode_ß']
 
@@ -45,6 +45,29 @@ def test_navsatfix_decodes_as_rclpy_serialized_it():
                 or (math.isnan(batch.alt[k]) and math.isnan(msg.altitude)))
         assert batch.cov[k].tolist() == list(msg.position_covariance)
         assert batch.cov_type[k] == msg.position_covariance_type
+
+
+def test_a_large_batch_is_read_at_once_as_message_by_message():
+    """Batches of BATCH_DECODE_MIN messages and more are read at once: every frame-id length
+    and field as rclpy serialized it, the same as each message alone; one big-endian or
+    malformed message in the batch sends the whole batch message by message."""
+    msgs = [_fix(NAMES[k % len(NAMES)] + str(k % 7) * (k % 3), k)
+            for k in range(3 * BATCH_DECODE_MIN)]
+    data = [serialize_message(m) for m in msgs]
+    batch, bad = decode_navsatfixes(data)
+    assert bad == []
+    for k, msg in enumerate(msgs):
+        row = decode_navsatfix(data[k])
+        assert batch.frame_id[k] == row[0] == msg.header.frame_id
+        assert batch.stamp[k] == row[1] + 1e-9 * row[2]
+        assert batch.status[k] == row[3] == msg.status.status
+        assert (batch.lat[k], batch.lon[k]) == (row[4], row[5]) == (msg.latitude, msg.longitude)
+        assert batch.alt[k] == row[6] or (math.isnan(batch.alt[k]) and math.isnan(row[6]))
+        assert tuple(batch.cov[k]) == row[7] == tuple(msg.position_covariance)
+        assert batch.cov_type[k] == row[8] == msg.position_covariance_type
+    mixed, bad = decode_navsatfixes(data[:100] + [b'\x00\x01\x00\x00' + bytes(5)] + data[100:])
+    assert [k for k, _ in bad] == [100] and mixed.frame_id == batch.frame_id
+    assert np.array_equal(mixed.cov, batch.cov) and np.array_equal(mixed.stamp, batch.stamp)
 
 
 def test_big_endian_navsatfix():
