@@ -129,7 +129,7 @@ class GpsIngest(Node):
         if self._inbox:
             return
         out = self.stream.poll(time.time())
-        if out.snapshots:
+        if out.snapshots or out.odometry or out.log:   # (fixes a refit released, too)
             self._publish(out)
 
     def on_shutdown(self):
