@@ -304,14 +304,24 @@ SPIN_WAKE_S = 0.1
 
 
 def spin_until_stopped(executor, context, stop: threading.Event):
-    """Spin one callback at a time until ``stop`` is set or the context is shut down.
+    """Spin until ``stop`` is set or the context is shut down.
 
     ``executor.spin()`` would not do: the events executor's spin runs in C++ without
     returning to Python (Python signal handlers never run), and a busy classic executor
-    starts callbacks back to back. Here the stop flag is checked after every callback and
-    at least every :data:`SPIN_WAKE_S`, and the context stays valid until the loop has
-    ended, so no callback ever publishes on a shut-down context.
+    starts callbacks back to back. Here the classic executor runs one callback at a time
+    and the stop flag is checked after each; the events executor runs its callbacks in C++
+    for at most :data:`SPIN_WAKE_S` at a time (``spin_until_future_complete`` of a future
+    that never completes: a loop of ``spin_once`` cost ``gps_ingest`` 3 % of a core at
+    5 000 fixes/s in the loop and its checks), so the flag is checked at least every
+    :data:`SPIN_WAKE_S` either way. The context stays valid until the loop has ended, so no
+    callback ever publishes on a shut-down context.
     """
+    if type(executor).__name__ == 'EventsExecutor':
+        from rclpy.task import Future
+        never = Future()
+        while not stop.is_set() and context.ok():
+            executor.spin_until_future_complete(never, timeout_sec=SPIN_WAKE_S)
+        return
     while not stop.is_set() and context.ok():
         executor.spin_once(timeout_sec=SPIN_WAKE_S)
 
