@@ -154,10 +154,12 @@ def test_refits_in_the_background_give_the_synchronous_states_and_snapshots():
     collars, fx = wandering_collars(5, 120)
     ref_states, ref_snaps = pushed(fitted_stream(5), collars, fx, [7])
     assert len(ref_states) > 500 and len(ref_snaps) > 100
-    for sizes, every in (([7, 1, 30, 3], 3), ([1], 1), ([400], 0)):
+    for sizes, every, chunk in (([7, 1, 30, 3], 3, 256), ([1], 1, 256), ([400], 0, 256),
+                                ([400], 0, 1)):
         s = fitted_stream(5, refit_in_background=True)
+        s.background.max_collars = chunk        # 1: the refits due together, one by one
         states, snaps = pushed(s, collars, fx, sizes, every)
-        assert states == ref_states, sizes
+        assert states == ref_states, (sizes, chunk)
         assert s.refitter.refits == 15 and s.fixes_held_for_refits == 0
         assert [t for t, _ in snaps] == [t for t, _ in ref_snaps]
         assert all(np.array_equal(a, b, equal_nan=True)

@@ -200,10 +200,14 @@ class BackgroundRefits:
     together) stopping every collar's fixes.
 
     One fit runs at a time; the refits that come due meanwhile wait and then run together
-    in one vectorised call (a collar's fit depends on its own window alone, so grouping
-    changes nothing computed). The compiled kernels release the GIL (and split over
+    in one vectorised call, oldest first, up to :data:`MAX_COLLARS` collars (a collar's
+    fit depends on its own window alone, so grouping changes nothing computed). The compiled kernels release the GIL (and split over
     :mod:`~herd_ros.ingest.collar_threads`), so the node's thread keeps working.
     """
+
+    #: the most collars fitted in one call (more wait for the next): large enough to share
+    #: each call's overhead, small enough that the first collars due are not held for all
+    MAX_COLLARS = 256
 
     def __init__(self, bank, refitter: MotionRefitter):
         from concurrent.futures import ThreadPoolExecutor
@@ -212,6 +216,7 @@ class BackgroundRefits:
         self._queued: list[RefitJob] = []
         self._running: tuple | None = None              # (RefitJob, Future)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix='herd_refit')
+        self.max_collars = self.MAX_COLLARS
         self.failures = 0
         self.last_failure = ''
 
@@ -228,13 +233,20 @@ class BackgroundRefits:
         return started
 
     def _start(self):
-        """With no fit running: the queued refits of the first one's settings, as one."""
+        """With no fit running: the oldest queued refits of the first one's settings, as
+        one, up to :attr:`max_collars` collars (the first due are freed first)."""
         if self._running is not None or not self._queued:
             return
         key = self._queued[0].settings
-        same = [j for j in self._queued if j.settings == key]
-        self._queued = [j for j in self._queued if j.settings != key]
-        job = RefitJob.merged(same)
+        take, rest, size = [], [], 0
+        for j in self._queued:
+            if j.settings == key and size < self.max_collars:
+                take.append(j)
+                size += len(j.collars)
+            else:
+                rest.append(j)
+        self._queued = rest
+        job = RefitJob.merged(take)
         self._running = (job, self._pool.submit(job.run))
 
     def finish(self, wait: bool = False) -> int:
