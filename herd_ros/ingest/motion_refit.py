@@ -201,7 +201,8 @@ class BackgroundRefits:
 
     One fit runs at a time; the refits that come due meanwhile wait and then run together
     in one vectorised call, oldest first, up to :data:`MAX_COLLARS` collars (a collar's
-    fit depends on its own window alone, so grouping changes nothing computed). The compiled kernels release the GIL (and split over
+    fit depends on its own window alone, so grouping changes nothing computed). The
+    compiled kernels release the GIL (and split over
     :mod:`~herd_ros.ingest.collar_threads`), so the node's thread keeps working.
     """
 
