@@ -310,7 +310,11 @@ PARAMS = {
              'in batches every this many seconds of wall time (all collars at '
              'once, compiled); 0 =\n'
              'each fix as it arrives. 5 ms keeps fix -> odom latency low and '
-             'the per-fix cost small.')),
+             'the per-fix cost small.\n'
+             'With the batches, the motion refits (`motion_model` fit) run in a '
+             'worker thread and\n'
+             'only the refitted collar\'s next fixes wait for its new model; '
+             'with 0 they run in line.')),
     'max_stamp_ahead_s': Param(
         600.0,
         'a fix stamped more than this (s) ahead of the wall clock is rejected',
