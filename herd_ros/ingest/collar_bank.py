@@ -114,6 +114,18 @@ class FixBatch:
         """(M,) the fix updated its collar's state."""
         return self.outcome <= REINITIALISED
 
+    @classmethod
+    def empty(cls, m: int, keep_covariance: bool = True) -> FixBatch:
+        """A batch of ``m`` rows to be written (``P`` of shape (0, 4, 4) without
+        ``keep_covariance``)."""
+        return cls(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
+                   np.empty((m if keep_covariance else 0, 4, 4)), np.empty(m, np.int64))
+
+    def rows(self, sl: slice) -> FixBatch:
+        """Rows ``sl`` of this batch as views (written through)."""
+        return FixBatch(self.outcome[sl], self.mahalanobis2[sl], self.x[sl], self.P[sl],
+                        self.segment[sl])
+
 
 class CollarBank:
     """The filters of ``n`` collars (indices 0..n-1), driven by batches of fixes.
@@ -231,9 +243,7 @@ class CollarBank:
         status = np.ascontiguousarray(status, dtype=np.int64)
         R = np.ascontiguousarray(R, dtype=float).reshape(m, 2, 2)
         if out is None:
-            out = FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
-                           np.empty((m if keep_covariance else 0, 4, 4)),
-                           np.empty(m, np.int64))
+            out = FixBatch.empty(m, keep_covariance)
         # a live batch (a few fixes) is never split: no count per collar for it
         parts = (collar_threads.split(np.bincount(collar, minlength=self.n))
                  if m >= collar_threads.MIN_WORK else [])
@@ -255,10 +265,7 @@ class CollarBank:
             rows = np.flatnonzero(which == k)
 
             def call():
-                res = FixBatch(np.empty(len(rows), np.int8), np.empty(len(rows)),
-                               np.empty((len(rows), 4)),
-                               np.empty((len(rows) if keep_P else 0, 4, 4)),
-                               np.empty(len(rows), np.int64))
+                res = FixBatch.empty(len(rows), keep_P)
                 self._process(collar[rows], stamp[rows], east[rows], north[rows],
                               status[rows], R[rows], res)
                 return rows, res

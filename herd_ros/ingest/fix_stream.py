@@ -265,10 +265,7 @@ class FixStream:
             self.clock.waiting[rows[0][hold]] = True    # not silent: their fixes are here
             if len(go):
                 part = _take_rows(rows, go)
-                m = len(go)
-                batch = FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
-                                 np.empty((m, 4, 4)), np.empty(m, np.int64))
-                motion = np.empty((m, 2))
+                batch, motion = FixBatch.empty(len(go)), np.empty((len(go), 2))
                 process_observed(self.bank, self.refitter, *part, batch, motion)
                 self._outcomes(part[0], part[1], batch, motion, out, now)
                 refits.submit(np.unique(part[0][due]))

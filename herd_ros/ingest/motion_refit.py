@@ -344,8 +344,7 @@ def process_with_refits(bank, refitter: MotionRefitter, collar, stamp, east, nor
     variances for the fit (:func:`fix_variance`)."""
     collar = np.ascontiguousarray(collar, dtype=np.int64)
     m = len(collar)
-    out = FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
-                   np.empty((m, 4, 4)), np.empty(m, np.int64))
+    out = FixBatch.empty(m)
     motion = np.empty((m, 2))
     due = refitter.due(collar)
     cuts = split_points(collar, due) + [m]
@@ -355,10 +354,8 @@ def process_with_refits(bank, refitter: MotionRefitter, collar, stamp, east, nor
             continue
         sl = slice(start, stop)
         c = collar[sl]
-        part = FixBatch(out.outcome[sl], out.mahalanobis2[sl], out.x[sl], out.P[sl],
-                        out.segment[sl])
         process_observed(bank, refitter, c, stamp[sl], east[sl], north[sl], status[sl],
-                         cov_type[sl], cov9[sl], var[sl], part, motion[sl])
+                         cov_type[sl], cov9[sl], var[sl], out.rows(sl), motion[sl])
         for i, fit in refitter.refit(np.unique(c[due[sl]])).items():
             apply_fit(bank, i, fit)
         start = stop

@@ -378,8 +378,7 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
     bounds = np.searchsorted(who, np.arange(len(agents) + 1))   # rows sorted by agent
     bank = collar_bank.CollarBank(len(agents), params)
     m = len(rows)
-    out = collar_bank.FixBatch(np.empty(m, np.int8), np.empty(m), np.empty((m, 4)),
-                               np.empty((m, 4, 4)), np.empty(m, np.int64))
+    out = collar_bank.FixBatch.empty(m)
     motion = np.empty((m, 2))
     refitter = None
     if refit is not None:
@@ -409,8 +408,7 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
             sl = slice(s, s + step)
             r = rows[sl]
             bank.process(codes[r], t[r], e[r], n[r], status[r], R[sl],
-                         out=collar_bank.FixBatch(out.outcome[sl], out.mahalanobis2[sl],
-                                                  out.x[sl], out.P[sl], out.segment[sl]))
+                         out=out.rows(sl))
             if bar is not None:
                 bar.update(len(r))
         if bar is not None:
