@@ -8,8 +8,9 @@ pairwise law or the shared law) and the two ways of learning it:
 * :meth:`HerdDynamics.fit` — batch: blocked cross-validation of the structure
   (:func:`~herd_ros.estimation.model_selection.select_model`), least squares of the chosen
   structure (:func:`~herd_ros.estimation.herd_fit.fit_structure`, eqs. 6–8 of Schwager,
-  Anderson & Rus 2007), then the long-run terms a free run needs (the space-use field and
-  the noise regimes, each kept only when a validation tail of the training data says so:
+  Anderson & Rus 2007), then the long-run terms a free run needs (the space-use field, each
+  agent's place in the herd and the noise regimes, each kept only when a validation tail of
+  the training data says so:
   :mod:`herd_ros.estimation.field_choice`);
 * :meth:`HerdDynamics.partial_fit` — recursive least squares one snapshot at a time
   (:class:`~herd_ros.estimation.online_fit.OnlineHerdEstimator`, the ``estimator`` node's
@@ -67,6 +68,8 @@ class FitOptions:
             the training data (:mod:`herd_ros.simulation.pace_calibration`); a positive
             number: that factor on every animal's noise std (1 = the residuals' noise, the
             paper's).
+        place: each agent's place in the herd (:mod:`herd_ros.model.herd_place`):
+            'auto' (kept when the validation tail's free run says so), 'on' or 'off'.
         alignment: velocity alignment (:mod:`herd_ros.model.alignment`): 'auto' (tried on
             the chosen structure, kept if cross-validation does), 'off' or 'on' (the
             structure chosen among the cross-validated candidates with alignment);
@@ -88,6 +91,7 @@ class FitOptions:
     folds: int = FOLDS
     min_visits: int = DEFAULT_MIN_VISITS
     noise_scale: str | float = 'auto'
+    place: str = 'auto'
     alignment: str = 'auto'
     alignment_neighbourhood: str = 'radius'
     alignment_nearest: int = 7
@@ -219,14 +223,15 @@ class HerdDynamics:
         return self
 
     def _long_run_terms(self, model, runs, refit, progress, log):
-        """The space-use field and the noise regimes of the options (``auto``: each kept when
-        the validation tail of the training data says so); recorded in :attr:`choices`."""
+        """The space-use field, the herd places and the noise regimes of the options
+        (``auto``: each kept when the validation tail of the training data says so);
+        recorded in :attr:`choices`."""
         from herd_ros.estimation.herd_fit import aligned_positions
         o, chosen = self.options, self.choices
         positions = [aligned_positions(r, model.agents) for r in runs]
         field_opt, noise = o.field, o.noise
         check = None
-        if 'auto' in (field_opt, noise):
+        if 'auto' in (field_opt, noise, o.place):
             from herd_ros.estimation.field_choice import ValidationTail
             # one validation tail for both checks: the chosen structure refitted once
             check = ValidationTail(runs, lambda train: refit(train).model)
@@ -248,10 +253,21 @@ class HerdDynamics:
                     f'{np.nanmax(h):.2f} m')
             for agent, why in model.meta['space_use_kept_fitted'].items():
                 log(f'space-use field: {agent} keeps its fitted field ({why})')
+        place = o.place
+        if place == 'auto':
+            from herd_ros.estimation.field_choice import choose_herd_place, describe_choice
+            keep, chosen['place_choice'] = choose_herd_place(
+                check, space_use=field_opt == 'space-use')
+            place = 'on' if keep else 'off'
+            log(describe_choice('place', chosen['place_choice']))
+        if place == 'on':
+            from herd_ros.model.herd_place import with_herd_place
+            model = with_herd_place(model, np.concatenate(positions))
+        chosen['herd_place'] = (model.meta or {}).get('herd_place') is not None
         if noise == 'auto':
             from herd_ros.estimation.field_choice import choose_noise_regimes, describe_choice
             keep, chosen['noise_choice'] = choose_noise_regimes(
-                check, space_use=field_opt == 'space-use')
+                check, space_use=field_opt == 'space-use', place=chosen['herd_place'])
             noise = 'regimes' if keep else 'gaussian'
             log(describe_choice('noise', chosen['noise_choice']))
         if noise == 'regimes':
@@ -282,6 +298,10 @@ class HerdDynamics:
         elif o.noise_scale != 1.0:
             model = with_noise_scale(model, np.full(model.n_agents, float(o.noise_scale)))
             chosen['noise_scale'] = {'method': 'given', 'scale': float(o.noise_scale)}
+        if chosen['herd_place'] and 'noise_scale' in (model.meta or {}):
+            # the places' gains for the noise the law now draws (P1: K_i ∝ Q_i)
+            from herd_ros.model.herd_place import with_herd_place
+            model = with_herd_place(model, np.concatenate(positions))
         return model
 
     @classmethod

@@ -406,3 +406,102 @@ def test_an_estimator_without_range_pulls_publishes_none():
     theta, home, place = est.published_law()
     assert not home[1].any() and not place[1].any() and home[2].any()
     assert 'space_use_home' not in est.model().meta and 'herd_place' not in est.model().meta
+
+
+def test_a_fitted_laws_place_pull_is_capped_at_a_fifth_of_its_noise_and_still_holds():
+    # (P2): with_herd_place caps each pull at 0.2 σ_i, σ_i² the largest eigenvalue of the
+    # noise the law draws (here Q = 0.02 diag(1, 0.5), its free-run factor 0.5 on the std:
+    # σ = 0.5 √0.02); inside the range nothing, just beyond it the uncapped (P1), far beyond
+    # 0.2 σ in the direction of (P1); and the capped places still keep the travelling herd of the
+    # test above together
+    import dataclasses
+
+    from herd_ros.model.herd_place import PLACE_CAP, place_drift, with_herd_place
+    model = damping_model([0.8, 0.8, 0.8], q=0.02)
+    model = dataclasses.replace(model, meta={**model.meta, 'noise_scale': np.full(3, 0.5)})
+    rng = np.random.default_rng(1)
+    steps = 3000
+    herd = (np.cumsum(rng.normal(0.0, 0.3, (steps, 1, 2)), axis=0)
+            + np.array([[-5.0, 0.0], [5.0, 0.0], [0.0, 8.0]]) + rng.normal(0, 1.0, (steps, 3, 2)))
+    placed = with_herd_place(model, herd)
+    mean, gain, cov, cap = placed.meta['herd_place']
+    sigma = 0.5 * np.sqrt(0.02)
+    assert PLACE_CAP == 0.2
+    np.testing.assert_allclose(cap, 0.2 * sigma, rtol=1e-12)
+    uncapped = {'herd_place': (mean, gain, cov)}
+    slots = mean * 2.0 / 3.0        # positions whose offsets are their means (N = 3): inside
+    assert np.allclose(place_drift(placed.meta, slots), 0.0)
+    far = slots.copy()
+    far[0] += [-60.0, 0.0]
+    g, g0 = place_drift(placed.meta, far), place_drift(uncapped, far)
+    assert (np.linalg.norm(g, axis=-1) <= cap * (1 + 1e-12)).all()
+    assert np.isclose(np.linalg.norm(g[0]), cap[0])             # agent 0 is far out: capped
+    np.testing.assert_allclose(g[0] / np.linalg.norm(g[0]), g0[0] / np.linalg.norm(g0[0]))
+    # just beyond the edge the pull is below its cap: (P1) itself
+    near = slots.copy()
+    near[0] += [-2.05 * np.sqrt(cov[0, 0, 0]), 0.0]
+    small = place_drift(uncapped, near)
+    assert 0.0 < np.linalg.norm(small[0]) < cap[0]
+    np.testing.assert_allclose(place_drift(placed.meta, near), small)
+
+    def spread(m, seed):
+        run = simulate(m, 20000, herd[0], seed=seed)
+        p = run.positions[-10000:]
+        return np.linalg.norm(p[:, :, None] - p[:, None], axis=-1).max(axis=(1, 2)).mean()
+    data = np.linalg.norm(herd[:, :, None] - herd[:, None], axis=-1).max(axis=(1, 2)).mean()
+    assert spread(model, 3) > 3.0 * data
+    assert abs(spread(placed, 3) - data) < 0.35 * data, (spread(placed, 3), data)
+
+
+def test_the_place_cap_goes_through_the_model_file(tmp_path):
+    import dataclasses
+
+    from herd_ros.model.herd_place import with_herd_place
+    model = damping_model([0.8, 0.8, 0.8], q=0.02)
+    rng = np.random.default_rng(2)
+    herd = np.array([[-5.0, 0.0], [5.0, 0.0], [0.0, 8.0]]) + rng.normal(0, 1.0, (500, 3, 2))
+    placed = with_herd_place(model, herd)
+    path = tmp_path / 'm.yaml'
+    save_model(placed, path)
+    back = load_model(path)
+    for x, y in zip(back.meta['herd_place'], placed.meta['herd_place'], strict=True):
+        np.testing.assert_allclose(x, y, rtol=1e-9)
+    # a cap without the place, or of the wrong length, is refused
+    import yaml
+    doc = yaml.safe_load(path.read_text())
+    body = doc['/**']['ros__parameters']['model']
+    for key in ('herd_place_offset', 'herd_place_gain', 'herd_place_range'):
+        del body[key]
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(HerdInputError, match='herd_place_cap'):
+        load_model(path)
+    save_model(dataclasses.replace(placed, meta={**placed.meta, 'herd_place': (
+        *placed.meta['herd_place'][:3], np.ones(2))}), path)
+    with pytest.raises(HerdInputError, match='herd_place_cap'):
+        load_model(path)
+
+
+def test_the_fit_keeps_the_places_of_a_herd_its_law_lets_drift_apart():
+    # three animals that keep their places (1 m about fixed slots) while the herd wanders:
+    # the law learned is damping and noise alone, which run freely random-walk apart; on the
+    # validation tail the places bring the free run's distance back, at no cost one step
+    # ahead, so the default fit keeps them (and --herd-place off does not)
+    from herd_ros.herd_dynamics import FitOptions, HerdDynamics
+    from herd_ros.simulation.free_run import free_run_fidelity
+    from herd_ros.trajectory import HerdTrajectory
+    rng = np.random.default_rng(1)
+    steps = 4000
+    herd = (np.cumsum(rng.normal(0.0, 0.3, (steps, 1, 2)), axis=0)
+            + np.array([[-5.0, 0.0], [5.0, 0.0], [0.0, 8.0]]) + rng.normal(0, 1.0, (steps, 3, 2)))
+    run = HerdTrajectory(np.arange(steps, dtype=float), ['a', 'b', 'c'], herd)
+    train, test = HerdTrajectory(run.times[:3000], run.agents, herd[:3000]), \
+        HerdTrajectory(run.times[3000:], run.agents, herd[3000:])
+    opts = dict(terms=['damping'], field='fitted', noise='gaussian', noise_scale=1.0)
+    kept = HerdDynamics(options=FitOptions(**opts)).fit(train)
+    off = HerdDynamics(options=FitOptions(**opts, place='off')).fit(train)
+    assert kept.choices['herd_place'] and kept.choices['place_choice']['kept']
+    assert not off.choices['herd_place'] and 'herd_place' not in (off.model.meta or {})
+    far = free_run_fidelity(off.model, test)['herd']['distance']
+    held = free_run_fidelity(kept.model, test)['herd']['distance']
+    assert far['relative'] > 0.5, far
+    assert abs(held['relative']) < 0.35, held

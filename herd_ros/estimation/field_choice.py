@@ -14,6 +14,18 @@ training data, on both counts (a split-sample check: the law is fitted on the fi
   pace (:func:`~herd_ros.simulation.free_run.free_run_fidelity`, median of the seeds);
 * the one-step RMS.
 
+Each agent's place in the herd (:mod:`herd_ros.model.herd_place`: the pull at the edge of
+the range of its offset from the others' centroid) holds a herd together when its law alone
+lets it drift apart (ten penned steers over two hours: distance +44 to +145 % of the
+held-out hour without it); where the places change between the training data and the
+rest (a baboon troop leaving its sleeping site) it pulls the law to places the herd has
+left, and binding animals whose noise is independent slows the herd's common motion (the
+baboons' first half: pace −60 %). They are kept when they bring the free-run error down to
+:data:`PLACE_GAIN` of the law's without them, make no statistic worse by more than
+:data:`PLACE_WORSE` and are at most :data:`ONE_STEP_TOLERANCE` worse one step ahead
+(:func:`choose_herd_place`; capped, (P2) of :mod:`~herd_ros.model.herd_place`, they cannot be
+much worse).
+
 Noise regimes (stop-and-go noise, :mod:`herd_ros.model.noise_regimes`) change nothing one
 step ahead (the mean prediction is the same); they are kept when they make the free run
 clearly closer on all of :data:`~herd_ros.simulation.free_run.STATISTICS` (the error falls
@@ -41,6 +53,12 @@ CLEAR_FAILURE = float(np.log(1.5))
 REGIMES_GAIN = 0.8
 #: how much worse the shape error may get with noise regimes (their gain is in the speeds)
 SHAPE_SLACK = 1.1
+#: herd places are kept when their free-run error is at most this share of the law's without
+#: them (and one step ahead within :data:`ONE_STEP_TOLERANCE`)
+PLACE_GAIN = 0.8
+#: ... and no statistic's error grows by more than this (|log ratio|: 25 % the wrong way);
+#: places bind animals whose noise is independent, which can slow the herd's common motion
+PLACE_WORSE = float(np.log(1.25))
 #: noise seeds of the free runs of the check
 SEEDS = 3
 #: the statistics the free-run error is taken over
@@ -74,6 +92,7 @@ class ValidationTail:
         self.positions = ([aligned_positions(r, self.model.agents) for r in fit_part]
                           if self.tail else [])
         self._space_use = None
+        self._placed = {}
 
     @property
     def reason(self) -> str:
@@ -92,6 +111,17 @@ class ValidationTail:
             from herd_ros.model.space_use_field import with_space_use_field
             self._space_use = with_space_use_field(self.model, np.concatenate(self.positions))
         return self._space_use
+
+    def law(self, space_use: bool = False, place: bool = False):
+        """The check's law with the space-use field and/or the herd places of its training
+        part (each made once; with ``place``, the law itself when no agent gets a pull)."""
+        base = self.space_use_model if space_use else self.model
+        if not place:
+            return base
+        if space_use not in self._placed:
+            from herd_ros.model.herd_place import with_herd_place
+            self._placed[space_use] = with_herd_place(base, np.concatenate(self.positions))
+        return self._placed[space_use]
 
 
 def choose_space_use(check: ValidationTail, seeds: int = SEEDS) -> tuple[bool, dict]:
@@ -119,10 +149,42 @@ def choose_space_use(check: ValidationTail, seeds: int = SEEDS) -> tuple[bool, d
     return keep, figures
 
 
-def choose_noise_regimes(check: ValidationTail, space_use: bool, seeds: int = SEEDS) -> tuple:
+def choose_herd_place(check: ValidationTail, space_use: bool,
+                      seeds: int = SEEDS) -> tuple[bool, dict]:
+    """Whether each agent's place in the herd earns its place (see the module docstring):
+    the check's law (with the space-use field when ``space_use``) without and with the
+    places of its training part, on the validation tail.
+
+    Returns (keep, figures) with figures {'without'|'with': {'one_step', 'free_run_error'}},
+    or (False, {'reason': ...})."""
+    from herd_ros.simulation.free_run import free_run_fidelity
+    from herd_ros.simulation.prediction import one_step_rms
+    if check.reason:
+        return False, {'reason': check.reason}
+    placed = check.law(space_use, place=True)
+    if placed is check.law(space_use):
+        return False, {'reason': 'no agent has a place: too few positions, offsets that do '
+                                 'not spread or no stationary law'}
+    figures = {}
+    for name, m in (('without', check.law(space_use)), ('with', placed)):
+        result = free_run_fidelity(m, check.longest, seeds=seeds)
+        figures[name] = {
+            'one_step': float(one_step_rms(m, check.tail)['model']['herd']),
+            'free_run_error': free_run_error(result),
+            'errors': {k: free_run_error(result, (k,)) for k in SHAPE}}
+    w, p = figures['without'], figures['with']
+    keep = (p['free_run_error'] <= PLACE_GAIN * w['free_run_error']
+            and all(p['errors'][k] <= w['errors'][k] + PLACE_WORSE for k in SHAPE)
+            and p['one_step'] <= (1.0 + ONE_STEP_TOLERANCE) * w['one_step'])
+    figures['kept'] = bool(keep)
+    return keep, figures
+
+
+def choose_noise_regimes(check: ValidationTail, space_use: bool, seeds: int = SEEDS,
+                         place: bool = False) -> tuple:
     """Whether noise regimes earn their place (see the module docstring): the check's law
-    (with the space-use field when ``space_use``), with Gaussian noise and with regimes,
-    run freely over the validation tail.
+    (with the space-use field when ``space_use``, the herd places when ``place``), with
+    Gaussian noise and with regimes, run freely over the validation tail.
 
     Returns (keep, figures) with figures {'gaussian'|'regimes': {'free_run_error',
     'shape_error'}, 'regimes_count': K}, or (False, {'reason': ...})."""
@@ -130,7 +192,7 @@ def choose_noise_regimes(check: ValidationTail, space_use: bool, seeds: int = SE
     from herd_ros.simulation.free_run import STATISTICS, free_run_fidelity
     if check.reason:
         return False, {'reason': check.reason}
-    model = check.space_use_model if space_use else check.model
+    model = check.law(space_use, place)
     regimes, info = with_noise_regimes(model, check.positions)
     if info['n_regimes'] == 1:
         return False, {'reason': 'BIC keeps one noise level', 'regimes': 1}
@@ -148,11 +210,13 @@ def choose_noise_regimes(check: ValidationTail, space_use: bool, seeds: int = SE
 
 
 def describe_choice(name: str, figures: dict) -> str:
-    """One line: what :func:`choose_space_use` (``name`` 'field') or
-    :func:`choose_noise_regimes` ('noise') kept (from its figures), and why."""
+    """One line: what :func:`choose_space_use` (``name`` 'field'),
+    :func:`choose_herd_place` ('place') or :func:`choose_noise_regimes` ('noise') kept
+    (from its figures), and why."""
     field = name == 'field'
-    name, plain, extra = ('field', 'fitted', 'space-use') if field else \
-        ('noise', 'gaussian', 'regimes')
+    name, plain, extra = {'field': ('field', 'fitted', 'space-use'),
+                          'place': ('herd place', 'none', 'each agent\'s'),
+                          'noise': ('noise', 'gaussian', 'regimes')}[name]
     if 'reason' in figures:
         return f'{name}: {plain} ({figures["reason"]})'
     kept = extra if figures.get('kept') else plain
@@ -161,6 +225,11 @@ def describe_choice(name: str, figures: dict) -> str:
         why = (f'free-run error {s["free_run_error"]:.2f} with space-use vs '
                f'{f["free_run_error"]:.2f} fitted, one-step RMS {s["one_step"]:.4f} vs '
                f'{f["one_step"]:.4f}')
+    elif name == 'herd place':
+        w, p = figures['without'], figures['with']
+        why = (f'free-run error {p["free_run_error"]:.2f} with the places vs '
+               f'{w["free_run_error"]:.2f} without, one-step RMS {p["one_step"]:.4f} vs '
+               f'{w["one_step"]:.4f}')
     else:
         r, g = figures['regimes'], figures['gaussian']
         why = (f'free-run error with {figures["regimes_count"]} regimes vs gaussian: all '

@@ -21,9 +21,14 @@ alone moves the agent. Attraction to the group's centroid is how group movement 
 hold a group together (Haydon et al. 2008, Proc. R. Soc. B 275:1101; Langrock et al. 2014,
 Methods Ecol. Evol. 5:190); here its strength and reach come from the data's spread.
 
-In a model it is ``meta['herd_place']`` = (m (N, 2), K (N, 2, 2), S (N, 2, 2)); a robot
-fleet keeps each robot's place among the other robots (their centroid stands for the
-herd's).
+In a model it is ``meta['herd_place']`` = (m (N, 2), K (N, 2, 2), S (N, 2, 2)), and for a
+law fitted offline (:func:`with_herd_place`) also the cap c_i (N,) of each pull,
+
+    ‖g_i^place‖ ≤ c_i = c σ_i,   σ_i² the largest eigenvalue of Q_i                     (P2)
+
+(a drift of at most a fraction of the noise per step: one step ahead the places cost at
+most √(1 + c²) − 1 in RMS, run freely they still hold). A robot fleet keeps each robot's
+place among the other robots (their centroid stands for the herd's).
 
 Plain numpy; no ROS.
 """
@@ -32,6 +37,11 @@ from __future__ import annotations
 import numpy as np
 
 from herd_ros.model.space_use_field import edge_pull, range_gain
+
+
+#: c of (P2): a fitted law's place pull is at most c times its noise std per step (a
+#: one-step prediction at most √(1 + c²) − 1 = 2 % worse in RMS)
+PLACE_CAP = 0.2
 
 
 def others_centroid(positions: np.ndarray) -> np.ndarray:
@@ -79,12 +89,52 @@ def place_coupling(n_agents: int) -> float:
 
 def place_drift(meta: dict | None, positions: np.ndarray) -> np.ndarray | float:
     """(P1) for every agent from ``meta['herd_place']``, positions (..., N, 2); 0.0
-    without it (and for an agent with no other present)."""
+    without it (and for an agent with no other present). With a fourth entry, the cap c_i
+    (N,) of a fitted law's places, each pull is shortened to at most c_i (P2)."""
     place = (meta or {}).get('herd_place')
     if place is None:
         return 0.0
-    mean, gain, cov = place
-    return edge_pull(place_offsets(positions) - mean, gain, cov)
+    mean, gain, cov = place[:3]
+    pull = edge_pull(place_offsets(positions) - mean, gain, cov)
+    if len(place) > 3:
+        size = np.linalg.norm(pull, axis=-1, keepdims=True)
+        pull = pull * np.minimum(1.0, np.asarray(place[3])[:, None]
+                                 / np.maximum(size, 1e-300))
+    return pull
+
+
+def drawn_noise(model) -> np.ndarray:
+    """Q_i (N, 2, 2) the law of ``model`` draws when it runs freely: its noise covariance
+    times the square of its free-run noise factor (``meta['noise_scale']``, on the std;
+    :mod:`herd_ros.simulation.pace_calibration`)."""
+    q = np.asarray(model.noise_cov, dtype=float)
+    scale = (model.meta or {}).get('noise_scale')
+    if scale is None:
+        return q
+    return q * np.square(np.asarray(scale, dtype=float))[:, None, None]
+
+
+def with_herd_place(model, positions: np.ndarray, cap: float = PLACE_CAP):
+    """``model`` with each agent's place in the herd (``meta['herd_place']``, (P1) capped by
+    (P2)) from ``positions`` (T, N, 2) in its agent order on its clock, the gain K_i for the
+    noise the law draws (:func:`drawn_noise`); ``model`` itself when no agent gets a pull.
+
+    The cap (P2): ‖g_i^place‖ ≤ c σ_i, σ_i² the largest eigenvalue of that noise Q_i and
+    c = ``cap``. A fitted law's places come from its training data; where the herd later
+    takes other places (a troop leaving its sleeping site) the linear pull of (P1) grows
+    with the distance and would dominate the law one step ahead. Capped, it shifts a one-step
+    prediction by at most c σ_i, against the noise σ_i it already carries: the one-step
+    RMS grows by at most √(1 + c²) − 1 (2 % for c = 0.2, the one-step tolerance of
+    :mod:`herd_ros.estimation.field_choice`), while run freely the capped pull, acting step
+    after step, still holds the herd's shape."""
+    import dataclasses
+    q = drawn_noise(model)
+    mean, gain, cov = herd_place(positions, model.damping, q, model.dt)
+    if not np.asarray(gain).any():
+        return model
+    limit = float(cap) * np.sqrt(np.maximum(np.linalg.eigvalsh(q)[:, -1], 0.0))
+    return dataclasses.replace(model, meta={**(model.meta or {}),
+                                            'herd_place': (mean, gain, cov, limit)})
 
 
 def subset_place(meta: dict | None, index) -> dict:

@@ -152,11 +152,13 @@ def read_home_range(values, n_agents: int, where: str, key: str = 'space_use_hom
 
 #: The model-file keys of ``meta['herd_place']`` (:mod:`herd_ros.model.herd_place`).
 HERD_PLACE_KEYS = ('herd_place_offset', 'herd_place_gain', 'herd_place_range')
+#: The optional cap of each place pull ((P2) of :mod:`herd_ros.model.herd_place`).
+HERD_PLACE_CAP = 'herd_place_cap'
 
 
 def read_herd_place(body: dict, given: list, n_agents: int, where: str):
     """(m (N, 2), K (N, 2, 2), S (N, 2, 2)) of the herd place from its three keys (all or
-    none), checked."""
+    none), and the caps c (N,) when ``herd_place_cap`` is given, checked."""
     if len(given) != len(HERD_PLACE_KEYS):
         raise HerdInputError(f'{where}.{"/".join(HERD_PLACE_KEYS)} go together')
     m, k = _number_lists(body['herd_place_offset'], body['herd_place_gain'],
@@ -166,7 +168,17 @@ def read_herd_place(body: dict, given: list, n_agents: int, where: str):
         raise HerdInputError(f'{where}: herd_place_offset needs N × 2 finite numbers and '
                              f'herd_place_gain N × 4 ({n_agents} agents)')
     s = read_home_range(body['herd_place_range'], n_agents, where, 'herd_place_range')
-    return m.reshape(n_agents, 2), k.reshape(n_agents, 2, 2), s
+    place = (m.reshape(n_agents, 2), k.reshape(n_agents, 2, 2), s)
+    if HERD_PLACE_CAP not in body:
+        return place
+    try:
+        cap = np.asarray(body[HERD_PLACE_CAP], dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise HerdInputError(f'{where}.{HERD_PLACE_CAP} must be a list of numbers') from None
+    if len(cap) != n_agents or not (np.isfinite(cap).all() and (cap >= 0).all()):
+        raise HerdInputError(f'{where}: {HERD_PLACE_CAP} needs N finite numbers ≥ 0 '
+                             f'({n_agents} agents)')
+    return place + (cap,)
 
 
 #: Per-agent positive factors kept in ``meta`` and the model file under the same key.
@@ -204,7 +216,9 @@ def add_model_meta(body: dict, model) -> None:
     * ``herd_place_offset`` [N × (x, y)], ``herd_place_gain`` [N × 4] and
       ``herd_place_range`` [N × 4]: each agent's place in the herd, the mean m_i and
       covariance S_i of its offset from the others' centroid and the gain K_i of the pull
-      at that range's edge ((P1) of :mod:`herd_ros.model.herd_place`); absent = none.
+      at that range's edge ((P1) of :mod:`herd_ros.model.herd_place`); absent = none;
+      ``herd_place_cap`` [N]: the most each pull may be (m/s per step, (P2)); absent = no
+      cap (the ``estimator``'s models).
     """
     meta = model.meta or {}
     for name, keys, _ in PAIRED_META:
@@ -215,7 +229,7 @@ def add_model_meta(body: dict, model) -> None:
     if home is not None and len(home) > 2:
         body['space_use_home_range'] = float_list(np.asarray(home[2]).ravel())
     if meta.get('herd_place') is not None:
-        for key, values in zip(HERD_PLACE_KEYS, meta['herd_place']):
+        for key, values in zip(HERD_PLACE_KEYS + (HERD_PLACE_CAP,), meta['herd_place']):
             body[key] = float_list(np.asarray(values).ravel())
     for key in PER_AGENT_FACTORS:
         if meta.get(key) is not None:
@@ -246,6 +260,9 @@ def read_model_meta(body: dict, n_agents: int, source: str) -> dict:
         if first in body:
             meta[name] = read(body[first], body[second], n_agents, f'{source}: model')
     given = [k for k in HERD_PLACE_KEYS if k in body]
+    if HERD_PLACE_CAP in body and not given:
+        raise HerdInputError(f'{source}: model.{HERD_PLACE_CAP} needs '
+                             f'{"/".join(HERD_PLACE_KEYS)}')
     if given:
         meta['herd_place'] = read_herd_place(body, given, n_agents, f'{source}: model')
     if 'space_use_home_range' in body:
