@@ -12,6 +12,10 @@ bursts), written as a GPS CSV, ingested and fitted with defaults (first half), t
 from the second half's start. Its spread is mostly which collars are reporting, so the runs
 are shown both ways: seen like the data (what ``fit`` reports) and seen whole.
 
+And ten of the steers over two hours, six windows of the recording (an analog of a calf pen
+tracked by RTLS): fitted on the first hour with defaults and with ``--herd-place off``, run
+from the second hour's start, beside the first hour's own statistics against the second.
+
     .venv/bin/python test/bench/bench_free_run.py [--analog-only]
 """
 import argparse
@@ -102,14 +106,71 @@ def analog(seeds=(0, 1, 2)):
                   + f'   {spreads:>40}', flush=True)
 
 
+#: the pen analog's windows: start hour in the steers' recording (2 h each)
+PEN_WINDOWS = (4, 15, 28, 41, 52, 63)
+
+
+def pen_analog(seed=0):
+    """Ten of the shipped steers over two hours (six windows of the recording, an analog of
+    a calf pen tracked by RTLS), fitted by ``herd-ros fit`` with defaults on the first hour
+    (the herd places on and off) and run from the second hour's start: the free run against
+    the second hour, beside the first hour's own statistics against it (what a law that
+    reproduced its training data exactly would score)."""
+    import numpy as np
+    import pandas as pd
+
+    from herd_ros.data_sources import load_runs
+    from herd_ros.estimation.herd_fit import aligned_positions, split_runs
+    from herd_ros.simulation.free_run import shape_and_pace
+    rec = pd.read_csv(HERDS['steers'])
+    rng = np.random.default_rng(seed)
+    t0 = rec['time'].min()
+    print('\nten steers over two hours (windows of the shipped recording), fitted on the '
+          'first hour with defaults, run from the second\'s start (5 seeds, median), '
+          'distance / spread / pace against the second hour:')
+    print(f'{"hour":<5} {"places":<7} {"one-step":>9} {"default fit":>22} '
+          f'{"--herd-place off":>22} {"first hour itself":>22}')
+    with tempfile.TemporaryDirectory() as tmp:
+        for start in PEN_WINDOWS:
+            pick = rng.choice(sorted(rec['agent'].unique()), 10, replace=False)
+            w = rec[(rec['time'] >= t0 + start * 3600) & (rec['time'] < t0 + (start + 2) * 3600)
+                    & rec['agent'].isin(pick)]
+            path = Path(tmp) / f'pen_{start}.csv'
+            w.to_csv(path, index=False, float_format='%.3f')
+            cells, kept, one = [], None, None
+            for extra in ([], ['--herd-place', 'off']):
+                out = Path(tmp) / f'pen_{start}{"_off" if extra else ""}'
+                subprocess.run([sys.executable, '-m', 'herd_ros.cli.main', 'fit', str(path),
+                                '-o', str(out) + '.yaml', '--train-fraction', '0.5',
+                                '--report', str(out), *extra], check=True,
+                               capture_output=True, cwd=ROOT)
+                summary = json.loads((out / 'summary.json').read_text())
+                fr = summary['free_run']['herd']
+                cells.append(' / '.join(f'{100 * fr[k]["relative"]:+.0f}'
+                                        for k in ('distance', 'spread', 'pace')) + ' %')
+                if kept is None:
+                    kept = summary['selection'].get('herd_place', False)
+                    one = summary['one_step_rms']['model']['herd']
+            runs, _ = load_runs(str(path))
+            halves = [max(part, key=lambda r: r.n_steps) for part in split_runs(runs, 0.5)]
+            first, second = (shape_and_pace(aligned_positions(r, runs[0].agents), r.dt)
+                             for r in halves)
+            cells.append(' / '.join(
+                f'{100 * (np.nanmean(first[k]) / np.nanmean(second[k]) - 1):+.0f}'
+                for k in ('distance', 'spread', 'pace')) + ' %')
+            print(f'{start:<5} {"kept" if kept else "-":<7} {one:>9.3f} '
+                  + ' '.join(f'{c:>22}' for c in cells), flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--analog-only', action='store_true',
-                    help='only the three-steer duty-cycled analog')
+                    help='only the analogs (the three-steer duty-cycled herd, the pen)')
     args = ap.parse_args()
     if not args.analog_only:
         shipped()
     analog()
+    pen_analog()
     print('reproduce: .venv/bin/python test/bench/bench_free_run.py')
 
 
