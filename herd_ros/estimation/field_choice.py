@@ -78,11 +78,13 @@ def free_run_error(result: dict, statistics=SHAPE) -> float:
 
 
 class ValidationTail:
-    """The check's data, made once for both choices: the chosen structure fitted on the
+    """The check's data, made once for the three choices: the chosen structure fitted on the
     first :data:`FIT_FRACTION` of every training run (``model``, by ``refit``: runs ->
     model), the positions it was fitted on, the tail that judges (``tail``, runs of at
-    least 10 steps; the free runs start from its longest) and, when first asked, the same
-    model with the space-use field (``space_use_model``)."""
+    least 10 steps; the free runs start from its longest), when first asked the same
+    model with the space-use field (``space_use_model``) and the herd places
+    (:meth:`law`), and each law's scores on the tail (:meth:`one_step`, :meth:`free_run`:
+    a law the choices share is run once)."""
 
     def __init__(self, train, refit):
         from herd_ros.estimation.herd_fit import aligned_positions, split_runs
@@ -93,6 +95,7 @@ class ValidationTail:
                           if self.tail else [])
         self._space_use = None
         self._placed = {}
+        self._one_step, self._free_run = {}, {}
 
     @property
     def reason(self) -> str:
@@ -123,6 +126,29 @@ class ValidationTail:
             self._placed[space_use] = with_herd_place(base, np.concatenate(self.positions))
         return self._placed[space_use]
 
+    def _key(self, space_use: bool, place: bool) -> tuple:
+        return (space_use, place and self.law(space_use, True) is not self.law(space_use))
+
+    def one_step(self, space_use: bool = False, place: bool = False) -> float:
+        """The herd's one-step RMS of :meth:`law` on the tail (computed once)."""
+        from herd_ros.simulation.prediction import one_step_rms
+        key = self._key(space_use, place)
+        if key not in self._one_step:
+            self._one_step[key] = float(
+                one_step_rms(self.law(*key), self.tail)['model']['herd'])
+        return self._one_step[key]
+
+    def free_run(self, space_use: bool = False, place: bool = False,
+                 seeds: int = SEEDS) -> dict:
+        """:func:`~herd_ros.simulation.free_run.free_run_fidelity` of :meth:`law` from the
+        start of the tail's longest run (computed once: the three choices share them)."""
+        from herd_ros.simulation.free_run import free_run_fidelity
+        key = self._key(space_use, place) + (seeds,)
+        if key not in self._free_run:
+            self._free_run[key] = free_run_fidelity(self.law(*key[:2]), self.longest,
+                                                    seeds=seeds)
+        return self._free_run[key]
+
 
 def choose_space_use(check: ValidationTail, seeds: int = SEEDS) -> tuple[bool, dict]:
     """Whether the space-use field earns its place (see the module docstring).
@@ -131,16 +157,13 @@ def choose_space_use(check: ValidationTail, seeds: int = SEEDS) -> tuple[bool, d
         (keep, figures) with figures {'fitted'|'space_use': {'one_step', 'free_run_error'}}
         on the validation tail, or (False, {'reason': ...}) when there is too little data.
     """
-    from herd_ros.simulation.free_run import free_run_fidelity
-    from herd_ros.simulation.prediction import one_step_rms
     if check.reason:
         return False, {'reason': check.reason}
     figures = {}
-    for name, m in (('fitted', check.model), ('space_use', check.space_use_model)):
+    for name, space_use in (('fitted', False), ('space_use', True)):
         figures[name] = {
-            'one_step': float(one_step_rms(m, check.tail)['model']['herd']),
-            'free_run_error': free_run_error(free_run_fidelity(m, check.longest,
-                                                               seeds=seeds))}
+            'one_step': check.one_step(space_use),
+            'free_run_error': free_run_error(check.free_run(space_use, seeds=seeds))}
     f, s = figures['fitted'], figures['space_use']
     keep = (f['free_run_error'] > CLEAR_FAILURE
             and s['free_run_error'] <= 0.5 * f['free_run_error']
@@ -157,19 +180,16 @@ def choose_herd_place(check: ValidationTail, space_use: bool,
 
     Returns (keep, figures) with figures {'without'|'with': {'one_step', 'free_run_error'}},
     or (False, {'reason': ...})."""
-    from herd_ros.simulation.free_run import free_run_fidelity
-    from herd_ros.simulation.prediction import one_step_rms
     if check.reason:
         return False, {'reason': check.reason}
-    placed = check.law(space_use, place=True)
-    if placed is check.law(space_use):
+    if check.law(space_use, place=True) is check.law(space_use):
         return False, {'reason': 'no agent has a place: too few positions, offsets that do '
                                  'not spread or no stationary law'}
     figures = {}
-    for name, m in (('without', check.law(space_use)), ('with', placed)):
-        result = free_run_fidelity(m, check.longest, seeds=seeds)
+    for name, place in (('without', False), ('with', True)):
+        result = check.free_run(space_use, place, seeds)
         figures[name] = {
-            'one_step': float(one_step_rms(m, check.tail)['model']['herd']),
+            'one_step': check.one_step(space_use, place),
             'free_run_error': free_run_error(result),
             'errors': {k: free_run_error(result, (k,)) for k in SHAPE}}
     w, p = figures['without'], figures['with']
@@ -198,7 +218,8 @@ def choose_noise_regimes(check: ValidationTail, space_use: bool, seeds: int = SE
         return False, {'reason': 'BIC keeps one noise level', 'regimes': 1}
     figures = {'regimes_count': int(info['n_regimes'])}
     for name, m in (('gaussian', model), ('regimes', regimes)):
-        result = free_run_fidelity(m, check.longest, seeds=seeds)
+        result = (check.free_run(space_use, place, seeds) if m is model
+                  else free_run_fidelity(m, check.longest, seeds=seeds))
         figures[name] = {'free_run_error': free_run_error(result, STATISTICS),
                          'shape_error': free_run_error(result, SHAPE)}
     g, r = figures['gaussian'], figures['regimes']
