@@ -48,6 +48,9 @@ def others_centroid(positions: np.ndarray) -> np.ndarray:
     """c_−i, the mean position of the agents other than i that are present (finite), for
     positions (..., N, 2); NaN where no other agent is."""
     p = np.asarray(positions, dtype=float)
+    n = p.shape[-2]
+    if n > 1 and np.isfinite(p).all():                  # everyone present (a free run)
+        return (p.sum(axis=-2, keepdims=True) - p) / (n - 1)
     seen = np.isfinite(p).all(axis=-1, keepdims=True)
     q = np.where(seen, p, 0.0)
     total = q.sum(axis=-2, keepdims=True) - q

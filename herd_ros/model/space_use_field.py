@@ -223,13 +223,37 @@ def edge_pull(d: np.ndarray, gain: np.ndarray, cov: np.ndarray) -> np.ndarray:
     covariance Σ_i (N, 2, 2), r_i = √(d_iᵀ Σ_i⁻¹ d_i) and r₀ = ``HOME_RANGE_RADIUS``: zero
     within the range's edge, continuous across it, the linear pull of gain K_i (N, 2, 2) on
     the excess beyond; NaN displacements give 0."""
+    inv = range_inverse(cov)
+    d = np.nan_to_num(np.asarray(d, dtype=float))
+    k = np.asarray(gain, dtype=float)
+    x, y = d[..., 0], d[..., 1]
+    r = np.sqrt(np.maximum(inv[:, 0, 0] * x * x + (inv[:, 0, 1] + inv[:, 1, 0]) * x * y
+                           + inv[:, 1, 1] * y * y, 1e-300))
+    beyond = np.clip(1.0 - HOME_RANGE_RADIUS / r, 0.0, None)
+    return np.stack([-(k[:, 0, 0] * x + k[:, 0, 1] * y) * beyond,
+                     -(k[:, 1, 0] * x + k[:, 1, 1] * y) * beyond], axis=-1)
+
+
+#: inverses of the range covariances :func:`edge_pull` was last given, by the array's
+#: identity (a model's ranges are fixed arrays; a law run freely asks every step)
+_INVERSES: dict = {}
+
+
+def range_inverse(cov: np.ndarray) -> np.ndarray:
+    """Σ_i⁻¹ (N, 2, 2) of range covariances (N, 2, 2), each eigenvalue floored at 10⁻⁶ of
+    its largest (a range that does not spread in one direction); remembered for the same
+    array object."""
+    hit = _INVERSES.get(id(cov))
+    if hit is not None and hit[0] is cov:
+        return hit[1]
     w, v = np.linalg.eigh(np.asarray(cov, dtype=float))
     w = np.maximum(w, 1e-6 * np.maximum(w[..., -1:], 1e-300))
     inv = np.einsum('nik,nk,njk->nij', v, 1.0 / w, v)
-    d = np.nan_to_num(np.asarray(d, dtype=float))
-    r = np.sqrt(np.maximum(np.einsum('...ni,nij,...nj->...n', d, inv, d), 1e-300))
-    pull = -np.einsum('nij,...nj->...ni', gain, d)
-    return pull * np.clip(1.0 - HOME_RANGE_RADIUS / r, 0.0, None)[..., None]
+    if isinstance(cov, np.ndarray):
+        if len(_INVERSES) >= 64:
+            _INVERSES.clear()
+        _INVERSES[id(cov)] = (cov, inv)
+    return inv
 
 
 def subset_home(meta: dict | None, index) -> dict:
