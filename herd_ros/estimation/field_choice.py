@@ -20,7 +20,8 @@ lets it drift apart (ten penned steers over two hours: distance +44 to +145 % of
 held-out hour without it); where the places change between the training data and the
 rest (a baboon troop leaving its sleeping site) it pulls the law to places the herd has
 left, and binding animals whose noise is independent slows the herd's common motion (the
-baboons' first half: pace −60 %). They are kept when they bring the free-run error down to
+baboons' first half: pace −60 %). They are tried only for a law whose free-run error is
+above :data:`PLACE_NEEDED` and kept when they bring the free-run error down to
 :data:`PLACE_GAIN` of the law's without them, make no statistic worse by more than
 :data:`PLACE_WORSE` and are at most :data:`ONE_STEP_TOLERANCE` worse one step ahead
 (:func:`choose_herd_place`; capped, (P2) of :mod:`~herd_ros.model.herd_place`, they cannot be
@@ -56,6 +57,9 @@ SHAPE_SLACK = 1.1
 #: herd places are kept when their free-run error is at most this share of the law's without
 #: them (and one step ahead within :data:`ONE_STEP_TOLERANCE`)
 PLACE_GAIN = 0.8
+#: places are not tried for a law whose free-run error is at most this (within 10 %, about
+#: what three noise seeds resolve: a known-truth law's 0.07-0.09 are noise)
+PLACE_NEEDED = float(np.log(1.1))
 #: ... and no statistic's error grows by more than this (|log ratio|: 25 % the wrong way);
 #: places bind animals whose noise is independent, which can slow the herd's common motion
 PLACE_WORSE = float(np.log(1.25))
@@ -185,6 +189,10 @@ def choose_herd_place(check: ValidationTail, space_use: bool,
     if check.law(space_use, place=True) is check.law(space_use):
         return False, {'reason': 'no agent has a place: too few positions, offsets that do '
                                  'not spread or no stationary law'}
+    alone = free_run_error(check.free_run(space_use, seeds=seeds))
+    if alone <= PLACE_NEEDED:
+        return False, {'reason': f'the law runs freely within 10 % without them (free-run '
+                                 f'error {alone:.2f})'}
     figures = {}
     for name, place in (('without', False), ('with', True)):
         result = check.free_run(space_use, place, seeds)
