@@ -233,7 +233,7 @@ class HerdDynamics:
         check = None
         if 'auto' in (field_opt, noise, o.place):
             from herd_ros.estimation.field_choice import ValidationTail
-            # one validation tail for both checks: the chosen structure refitted once
+            # one validation tail for the three checks: the chosen structure refitted once
             check = ValidationTail(runs, lambda train: refit(train).model)
         if field_opt == 'auto':
             from herd_ros.estimation.field_choice import choose_space_use, describe_choice

@@ -8,7 +8,7 @@ known-truth herd (herd_ros.synthesis.known_truth). Times, beside each other:
 * the selected fit as `herd-ros fit` does it by default: blocked cross-validation of every
   candidate (model_selection.select_model), then the final fit of the chosen structure;
 * the whole default fit, ``HerdDynamics().fit`` (what `herd-ros fit` runs: the selected fit
-  plus the long-run terms: the field and noise checks on a validation tail and the
+  plus the long-run terms: the field, herd-place and noise checks on a validation tail and the
   free-run noise calibration), once per case.
 Not the simulation of the data. Prints medians over repeats.
 
