@@ -32,6 +32,15 @@ VARIANTS = {'defaults': [], 'fitted, gaussian': ['--field', 'fitted', '--noise',
             'space-use, gauss.': ['--field', 'space-use', '--noise', 'gaussian']}
 
 
+def fit_first_half(data, out: Path, extra=()) -> dict:
+    """``herd-ros fit DATA --train-fraction 0.5 --report OUT`` with ``extra`` options (the
+    model written to OUT.yaml): the report's summary.json."""
+    subprocess.run([sys.executable, '-m', 'herd_ros.cli.main', 'fit', str(data), '-o',
+                    str(out) + '.yaml', '--train-fraction', '0.5', '--report', str(out),
+                    *extra], check=True, capture_output=True, cwd=ROOT)
+    return json.loads((out / 'summary.json').read_text())
+
+
 def cattle_analog(tmp, seed=0):
     """The analog's GPS CSV (module docstring): three steers drawn with ``seed``, the third
     moved 1.3 km in a random direction."""
@@ -140,11 +149,7 @@ def pen_analog(seed=0):
             cells, kept, one = [], None, None
             for extra in ([], ['--herd-place', 'off']):
                 out = Path(tmp) / f'pen_{start}{"_off" if extra else ""}'
-                subprocess.run([sys.executable, '-m', 'herd_ros.cli.main', 'fit', str(path),
-                                '-o', str(out) + '.yaml', '--train-fraction', '0.5',
-                                '--report', str(out), *extra], check=True,
-                               capture_output=True, cwd=ROOT)
-                summary = json.loads((out / 'summary.json').read_text())
+                summary = fit_first_half(path, out, extra)
                 fr = summary['free_run']['herd']
                 cells.append(' / '.join(f'{100 * fr[k]["relative"]:+.0f}'
                                         for k in ('distance', 'spread', 'pace')) + ' %')
@@ -181,11 +186,7 @@ def shipped():
         for herd, data in HERDS.items():
             for name, extra in VARIANTS.items():
                 out = Path(tmp) / f'{herd}_{name.replace(" ", "_")}'
-                subprocess.run([sys.executable, '-m', 'herd_ros.cli.main', 'fit', str(data),
-                                '-o', str(out) + '.yaml', '--train-fraction', '0.5',
-                                '--report', str(out), *extra], check=True,
-                               capture_output=True, cwd=ROOT)
-                summary = json.loads((out / 'summary.json').read_text())
+                summary = fit_first_half(data, out, extra)
                 fr, one = summary['free_run']['herd'], summary['one_step_rms']['model']
                 cells = []
                 for k in ('distance', 'spread', 'pace'):
