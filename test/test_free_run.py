@@ -73,3 +73,38 @@ def test_observed_like_aligns_a_run_that_starts_late():
     assert seen.shape == span.shape == (5, 2, 2)
     assert np.isnan(seen[2, 1]).all() and np.isfinite(np.delete(seen, 2, axis=0)).all()
     assert np.isfinite(seen[:, 0]).all()
+
+
+@pytest.mark.parametrize('regimes', [False, True])
+def test_runs_simulated_together_are_each_the_run_alone(monkeypatch, regimes):
+    """simulate_from_each (one step of the law for every run) gives, run by run, exactly
+    what simulate_from gives alone: runs of different lengths, an animal that starts late,
+    herd places, Gaussian or switching noise, and batches split by the memory bound."""
+    import dataclasses
+
+    from herd_ros.errors import HerdInputError
+    from herd_ros.model.herd_place import with_herd_place
+    from herd_ros.simulation import herd_simulator
+    from herd_ros.simulation.herd_simulator import simulate_from, simulate_from_each
+    truth = make_truth_model(3, seed=1)
+    data = simulate(truth, 400, initial_positions(truth, seed=1, spread=25), seed=0)
+    model = with_herd_place(truth, data.positions)
+    assert model.meta.get('herd_place') is not None
+    if regimes:                     # a resting and a moving regime per animal
+        cov = np.stack([np.stack([0.01 * q, 4.0 * q]) for q in model.noise_cov])
+        trans = np.tile([[0.95, 0.05], [0.1, 0.9]], (3, 1, 1))
+        model = dataclasses.replace(model, meta={**model.meta, 'noise_regimes': (cov, trans)})
+    p = data.positions.copy()
+    p[:5, 1] = np.nan                                   # the second animal starts late
+    runs = [HerdTrajectory(data.times[k:], data.agents, p[k:]) for k in (0, 30, 150, 0)]
+    seeds = [3, 4, 5, 6]
+    for bound in (10 ** 6, 2_500):                      # one batch; then two runs each
+        monkeypatch.setattr(herd_simulator, 'BATCH_POSITIONS', bound)
+        together = simulate_from_each(model, runs, seeds)
+        for run, seed, sim in zip(runs, seeds, together):
+            alone = simulate_from(model, run, seed=seed)
+            assert np.array_equal(sim.times, alone.times)
+            assert np.array_equal(sim.positions, alone.positions)
+    assert not np.array_equal(together[0].positions, together[3].positions)  # seeds differ
+    with pytest.raises(HerdInputError, match='4 runs need as many seeds, got 2'):
+        simulate_from_each(model, runs, [1, 2])

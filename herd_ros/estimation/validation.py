@@ -17,7 +17,7 @@ from herd_ros.estimation.herd_fit import HerdFit, aligned_positions
 from herd_ros.estimation.shared_residuals import shared_residuals
 from herd_ros.estimation.whiteness import whiteness
 from herd_ros.nan_stats import empty_slices_quiet
-from herd_ros.simulation.herd_simulator import simulate_from
+from herd_ros.simulation.herd_simulator import simulate_from_each
 from herd_ros.simulation.prediction import damping_only_fit, k_step_rms, one_step_rms
 from herd_ros.simulation.statistics import herd_statistics, relative_differences
 from herd_ros.trajectory import HerdTrajectory
@@ -178,7 +178,7 @@ def validate(fit: HerdFit, train: list[HerdTrajectory], test: list[HerdTrajector
                               else {})
     if getattr(model, 'alignment', None) is not None:
         summary['alignment'] = model.alignment.summary(model.agents)
-    sims = [simulate_from(model, r, seed=seed + k) for k, r in enumerate(train)]
+    sims = simulate_from_each(model, list(train), [seed + k for k in range(len(train))])
     real_stats, sim_stats = herd_statistics(train), herd_statistics(sims)
     summary['statistics'] = {'real': real_stats, 'simulated': sim_stats,
                              'relative_difference': relative_differences(real_stats, sim_stats)}

@@ -234,6 +234,12 @@ class GaussianNoise:
         xi = self.rng.standard_normal((len(self.factor), 2))
         return np.sqrt(float(fraction)) * np.einsum('rij,rj->ri', self.factor, xi)
 
+    def draw_steps(self, steps: int) -> np.ndarray:
+        """w of every agent for ``steps`` whole model steps (steps, R, 2): the draws of
+        ``steps`` calls of :meth:`draw` in one (the generator's stream is the same)."""
+        xi = self.rng.standard_normal((int(steps), len(self.factor), 2))
+        return np.einsum('rij,krj->kri', self.factor, xi)
+
 
 def noise_for(model, rng=None, scale: float = 1.0):
     """The noise source of a model: :class:`RegimeNoise` when its ``meta`` holds

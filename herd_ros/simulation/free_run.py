@@ -81,21 +81,22 @@ def observed_like(sim: HerdTrajectory, data: np.ndarray, data_times: np.ndarray
 
 def free_run_fidelity(model, run: HerdTrajectory, seeds: int = SEEDS) -> dict:
     """The law of ``model`` run freely from the start of ``run`` for its length (``seeds``
-    noise seeds, :func:`~herd_ros.simulation.herd_simulator.simulate_from`) against ``run``,
-    each run observed like the data (:func:`observed_like`).
+    noise seeds, simulated together by :func:`~herd_ros.simulation.herd_simulator.
+    simulate_from_each`) against ``run``, each run observed like the data
+    (:func:`observed_like`).
 
     Returns {'steps', 'seeds', 'agents', 'herd': {stat: row}, 'per_agent': {agent: {stat:
     row}}} with row = {'data', 'median', 'min', 'max', 'relative'} (relative = median/data −
     1; the herd's row is over the mean of the animals' values).
     """
-    from herd_ros.simulation.herd_simulator import simulate_from
+    from herd_ros.simulation.herd_simulator import simulate_from_each
     agents = list(model.agents)
     order = [run.agents.index(a) for a in agents]
     positions = run.positions[:, order]
     data = None
     sims = []
-    for seed in range(seeds):
-        sim = simulate_from(model, HerdTrajectory(run.times, agents, positions), seed=seed)
+    start = HerdTrajectory(run.times, agents, positions)
+    for sim in simulate_from_each(model, [start] * seeds, range(seeds)):
         seen, span = observed_like(sim, positions, run.times)
         if data is None:                  # the same span for every seed
             data, steps = shape_and_pace(span, model.dt), len(span)

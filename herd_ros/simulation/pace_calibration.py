@@ -88,22 +88,29 @@ def _data_paces(positions, starts, length, dt):
     return np.array([shape_and_pace(positions[s0:s0 + length], dt)['pace'] for s0 in starts])
 
 
-def _segment_paces(model, positions, starts, length, seed):
-    """The simulated pace (S, N) over the segments of one run, each run freely from its
-    segment's start."""
-    from herd_ros.simulation.herd_simulator import simulate_from
+def _segment_paces(model, plan, seeds):
+    """The simulated pace (seeds, S, N) over the segments of every run of ``plan`` (S in
+    all), each run freely from its segment's start; all runs simulated together
+    (:func:`~herd_ros.simulation.herd_simulator.simulate_from_each`)."""
+    from herd_ros.simulation.herd_simulator import simulate_from_each
     from herd_ros.trajectory import HerdTrajectory
-    sims = []
-    times = np.arange(len(positions)) * model.dt
-    for k, s0 in enumerate(starts):
-        seg = positions[s0:s0 + length]
-        run = HerdTrajectory(times[s0:s0 + length], list(model.agents), seg)
-        sim = simulate_from(model, run, seed=None if seed is None else seed * 1009 + k)
+    segments, runs, run_seeds = [], [], []
+    for seed in range(seeds):
+        for positions, starts, length in plan:
+            times = np.arange(len(positions)) * model.dt
+            for k, s0 in enumerate(starts):
+                seg = positions[s0:s0 + length]
+                segments.append(seg)
+                runs.append(HerdTrajectory(times[s0:s0 + length], list(model.agents), seg))
+                run_seeds.append(seed * 1009 + k)
+    sims = simulate_from_each(model, runs, run_seeds)
+    paces = []
+    for sim, seg, run in zip(sims, segments, runs):
         # the run's segment may start later (the first snapshot with every agent): the
         # simulation covers the segment's end, seen where the data are (observed_like)
         seen, _ = observed_like(sim, seg, run.times)
-        sims.append(shape_and_pace(seen, model.dt)['pace'])
-    return np.array(sims)
+        paces.append(shape_and_pace(seen, model.dt)['pace'])
+    return np.array(paces).reshape(seeds, -1, model.n_agents)
 
 
 def with_noise_scale(model, scale):
@@ -145,13 +152,9 @@ def calibrate_noise_scale(model, positions, *, iterations: int = ITERATIONS,
     def paces(s):
         """The simulated pace (N,) (mean over seeds and segments), and the std over seeds
         of the log of each seed's simulated pace (N,)."""
-        m = with_noise_scale(model, s)
-        per_seed = []
-        for seed in range(seeds):
-            s_all = [_segment_paces(m, p, starts, length, seed) for p, starts, length in plan]
-            with empty_slices_quiet():
-                per_seed.append(np.nanmean(np.concatenate(s_all), axis=0))
-        per_seed = np.array(per_seed)
+        with empty_slices_quiet():
+            per_seed = np.nanmean(_segment_paces(with_noise_scale(model, s), plan, seeds),
+                                  axis=1)
         with empty_slices_quiet(), np.errstate(divide='ignore', invalid='ignore'):
             return (np.nanmean(per_seed, axis=0),
                     np.nanstd(np.log(per_seed), axis=0, ddof=1) if seeds > 1
