@@ -91,3 +91,43 @@ def test_robots_are_seen_at_their_animals_fixes():
     np.testing.assert_array_equal(held[1:4, 0], [[1.0, 2.0]] * 3)
     np.testing.assert_array_equal(held[4, 0], [5.0, 6.0])
     assert np.isnan(held[:, 1]).all()
+
+
+def test_a_robot_that_retraces_its_animal_passes_when_both_are_seen_at_the_fixes(tmp_path):
+    """Two animals walk known zigzags, fixed every 30-150 s; their tracks on a 10 s clock
+    move between fixes (here: straight from fix to fix, as a collar's fitted velocity
+    carries a track on), and two robots retrace the animals exactly. Seen at the animals'
+    fixes, animals and robots are the same samples: every statistic agrees to rounding,
+    and every robot passes. The robots seen at the fixes against the herd poses at the
+    ticks (the comparison before) differ in the spread of speed: a track that moves
+    between fixes spreads each fix's step over several ticks."""
+    from herd_ros.report.demo_report import seen_at_fixes, write_demo_report
+    times = np.arange(0.0, 3600.0, 10.0)
+    rng = np.random.default_rng(4)
+    fixes = [np.cumsum(rng.uniform(30.0, 150.0, 40)) for _ in range(2)]
+    fixes = [f[f < times[-1]] for f in fixes]
+
+    def path(t, k):                                   # the animals' true positions
+        return np.stack([0.02 * t + 5.0 * np.sin(t / (200.0 + 50 * k)) + 20.0 * k,
+                         3.0 * np.cos(t / 150.0) + 10.0 * k], axis=-1)
+
+    fix_xy = [path(f, k) for k, f in enumerate(fixes)]
+    track = np.full((len(times), 2, 2), np.nan)       # straight from fix to fix, then held
+    for k, (f, xy) in enumerate(zip(fixes, fix_xy)):
+        on = times >= f[0]
+        for d in range(2):
+            track[on, k, d] = np.interp(times[on], f, xy[:, d])
+    cows = HerdTrajectory(times, ['a', 'b'], track)
+    robots_xy = np.stack([path(times, 0), path(times, 1)], axis=1)
+    robots = HerdTrajectory(times, ['r1', 'r2'], robots_xy)
+    at_fixes = HerdTrajectory(times, ['r1', 'r2'], seen_at_fixes(times, fixes, fix_xy))
+    cows_at_fixes = HerdTrajectory(times, ['a', 'b'], np.where(
+        np.isfinite(track), seen_at_fixes(times, fixes, fix_xy), np.nan))
+    s = write_demo_report(tmp_path, cows, robots, ['a', 'b'], [], [],
+                          robots_at_fixes=at_fixes, cows_at_fixes=cows_at_fixes)
+    assert max(s['herd_relative_difference'].values()) < 1e-9
+    assert all(e['pass'] for e in s['verdict']['robots'].values()) and s['verdict']['herd_pass']
+    before = write_demo_report(tmp_path / 'before', cows, robots, ['a', 'b'], [], [],
+                               robots_at_fixes=at_fixes)
+    assert before['herd_relative_difference']['std_speed'] > 0.5
+    assert s['cows_continuous'] == before['cows']

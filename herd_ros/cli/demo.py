@@ -106,19 +106,20 @@ def run(args) -> int:
     summary = run_live_demo(bag, args.out, rate=args.rate, dt=args.dt, herd_file=args.herd)
     print(f'\ndemo done in {time.perf_counter() - t0:.0f} s: {summary["herd_snapshots"]} herd '
           f'snapshots, {summary["model_updates"]} model updates, {summary["robot_samples"]} '
-          f'robot samples. Herd statistics, animals vs robots (mean over the herd; each robot '
-          f'seen like its animal: where the animal has a herd pose, at the animal\'s fixes; '
-          f'in brackets the robots\' own positions at the ticks):')
+          f'robot samples. Herd statistics, animals vs robots (mean over the herd; each '
+          f'animal and its robot seen at the animal\'s fixes, where its track was informed, '
+          f'and where it has a herd pose; in brackets the herd poses and the robots\' own '
+          f'positions at the ticks):')
     cows, robots = summary['cows'], summary['robots']
+    cows_own = summary.get('cows_continuous') or {}
     own = summary.get('robots_continuous') or {}
     for key in ('mean_distance', 'std_distance', 'mean_speed', 'std_speed'):
-        c = sum(v[key] for v in cows.values()) / max(len(cows), 1)
-        r = sum(v[key] for v in robots.values()) / max(len(robots), 1)
-        r_own = sum(v[key] for v in own.values()) / max(len(own), 1)
+        c, r, c_own, r_own = (sum(v[key] for v in s.values()) / max(len(s), 1)
+                              for s in (cows, robots, cows_own, own))
         unit = 'm' if 'distance' in key else 'm/s'
         print(f'  {key:14s} animals {c:8.3f} {unit:3s}  robots {r:8.3f} {unit:3s}  '
               f'({100 * summary["herd_relative_difference"].get(key, float("nan")):.0f} % apart)'
-              f'  [{r_own:8.3f}]')
+              f'  [{c_own:8.3f} vs {r_own:8.3f}]')
     v = summary['verdict']
     print(f'Each robot against its animal (every statistic within {100 * v["bar"]:.0f} %): '
           + ', '.join(f'{r} ({e["animal"]}, started {e["start_offset_m"]:.1f} m off) '

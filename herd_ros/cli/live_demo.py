@@ -76,8 +76,9 @@ class DemoRecorder:
         node.create_subscription(Float64MultiArray, '/herd/model/params', self.on_params, 100)
         node.create_subscription(PoseArray, '/herd/model/prediction', self.on_prediction, 100)
         # each animal's accepted fixes (gps_ingest's odometry, stamped with the fix): when
-        # its track was informed
+        # its track was informed, and where the track put the animal then
         self.fix_times = {a: [] for a in agents}
+        self.fix_xy = {a: [] for a in agents}
         for a in agents:
             node.create_subscription(Odometry, f'/herd/{a}/odom',
                                      lambda msg, a=a: self.on_fix(a, msg), 1000)
@@ -96,9 +97,11 @@ class DemoRecorder:
             self.herd.append(self._xy(msg))
 
     def on_fix(self, agent: str, msg):
-        """Note the stamp of an accepted fix of ``agent``."""
+        """Note the stamp of an accepted fix of ``agent`` and its track's position there."""
+        p = msg.pose.pose.position
         with self.lock:
             self.fix_times[agent].append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
+            self.fix_xy[agent].append((p.x, p.y))
 
     def on_prediction(self, msg):
         """Keep one of the estimator's one-step predictions."""
@@ -261,13 +264,18 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
         param_times, thetas = list(recorder.param_times), list(recorder.params)
         pred_times = np.asarray(recorder.pred_times)
         preds = np.asarray(recorder.preds).reshape(-1, len(agents), 2)
-        # each robot where its animal's track was informed: at the animal's fixes
+        # each animal and its robot where the animal's track was informed: at its fixes
+        animal_fixes = [last_per_stamp(recorder.fix_times[a], recorder.fix_xy[a])
+                        for a in agents]
         fix_times, fix_xy = [], []
-        for k, a in enumerate(agents[:len(robots)]):          # robot k follows animal k
-            ft = np.unique(np.asarray(recorder.fix_times.get(a, []), dtype=float))
+        for k, (ft, _) in enumerate(animal_fixes[:len(robots)]):  # robot k follows animal k
             fix_times.append(ft)
             fix_xy.append(robots_at(ft, fleet_times, fleet_xy, interpolate=True)[:, k]
                           if len(ft) else np.zeros((0, 2)))
+    cows_at_fixes = HerdTrajectory(times, agents, np.where(
+        np.isfinite(cows.positions),
+        seen_at_fixes(times, [ft for ft, _ in animal_fixes], [xy for _, xy in animal_fixes]),
+        np.nan))
     active = np.isfinite(rob).all(axis=(1, 2))
     if len(thetas):
         first_model_t = param_times[0]
@@ -297,7 +305,18 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     profile_size = int(params['estimator']['ros__parameters'].get('profile_size', 6))
     return write_demo_report(out, cows, robots_traj, agents, param_times, thetas, fence, facts,
                              law=setup.law, profile_size=profile_size,
-                             robots_at_fixes=at_fixes)
+                             robots_at_fixes=at_fixes, cows_at_fixes=cows_at_fixes)
+
+
+def last_per_stamp(stamps, positions) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps (F,), positions (F, 2)) sorted by stamp, one per stamp (the last received:
+    a fix published again after a correction replaces the first)."""
+    t = np.asarray(stamps, dtype=float)
+    xy = np.asarray(positions, dtype=float).reshape(-1, 2)
+    order = np.argsort(t, kind='stable')
+    t, xy = t[order], xy[order]
+    last = np.append(t[1:] != t[:-1], True) if len(t) else np.zeros(0, dtype=bool)
+    return t[last], xy[last]
 
 
 def stop_graph(executor, spinner, nodes, stopping):

@@ -174,18 +174,27 @@ def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
                       assignment: list[str], param_times, param_thetas, fence=None,
                       facts: dict | None = None, law: str = 'pairwise',
                       profile_size: int = 0,
-                      robots_at_fixes: HerdTrajectory | None = None) -> dict:
+                      robots_at_fixes: HerdTrajectory | None = None,
+                      cows_at_fixes: HerdTrajectory | None = None) -> dict:
     """Figures and ``summary.json`` of the live demo; returns the summary.
 
     The robots' statistics (``robots``, the verdict) see each robot like its animal: only
     where the animal has a herd pose (:func:`seen_like_animals`) and, given
     ``robots_at_fixes`` (the robots on the same ticks, :func:`seen_at_fixes`), where its
     animal's track was informed; ``robots_continuous`` keeps the robots' own positions at
-    the ticks (where the animal has a pose), ``robots_all_samples`` every sample."""
+    the ticks (where the animal has a pose), ``robots_all_samples`` every sample. Given
+    ``cows_at_fixes`` (each animal's track at its last accepted fix, on the same ticks),
+    the animals' statistics (``cows``) are taken the same way: between fixes a track is
+    the tracker's prediction (a fitted collar's velocity carries it on), not the animal;
+    ``cows_continuous`` keeps the herd poses'."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cows, robots = _finite_rows(cows), _finite_rows(robots)
     cow_stats = herd_statistics(cows) if cows.n_steps >= 2 else {}
+    continuous_cows = cow_stats
+    if cows_at_fixes is not None and robots_at_fixes is not None:
+        seen_cows = _finite_rows(cows_at_fixes)
+        cow_stats = herd_statistics(seen_cows) if seen_cows.n_steps >= 2 else {}
     every_sample = herd_statistics(robots) if robots.n_steps >= 2 else {}
     seen = _finite_rows(seen_like_animals(cows, robots, assignment))
     continuous = herd_statistics(seen) if seen.n_steps >= 2 else {}
@@ -219,7 +228,8 @@ def write_demo_report(out_dir, cows: HerdTrajectory, robots: HerdTrajectory,
         statistics_figure(cow_stats, by_cow, out / 'fig_statistics.png', labels=('cows',
                                                                                   'robots'))
         figures.append('fig_statistics.png')
-    summary = {'cows': cow_stats, 'robots': robot_stats, 'robots_continuous': continuous,
+    summary = {'cows': cow_stats, 'cows_continuous': continuous_cows, 'robots': robot_stats,
+               'robots_continuous': continuous,
                'robots_all_samples': every_sample,
                'assignment': dict(zip(robots.agents, assignment)),
                'relative_difference': rel, 'herd_relative_difference': herd_rel,
