@@ -289,6 +289,42 @@ def test_live_model_from_the_estimator_topic(graph):
     assert cmds['r2'][-1][1].linear.x > 0.05
 
 
+def test_a_robot_waits_until_its_animal_has_been_in_the_herd_long_enough(graph):
+    # model_min_updates 3: r1's animal (a0) is on /herd/poses from the start, r2's (a1) only
+    # later (a collar that starts late): r2 holds still while r1 follows its law; once a1 has
+    # poses in three model steps (dt 1 s), r2 follows too
+    from geometry_msgs.msg import Pose, PoseArray
+
+    from herd_ros.nodes.ros_common import tensor_message as matrix
+    g, ear = graph
+    cmds, model, theta = topic_controller(g, ear, 'max_speed:=0.8', 'model_min_updates:=3')
+    publish_structure(ear, model)
+    params = ear.node.create_publisher(Float64MultiArray, '/herd/model/params', 10)
+    poses = ear.node.create_publisher(PoseArray, '/herd/poses', QoSProfile(depth=100))
+    hold_robots(ear, {'r1': (-1.0, 0.0), 'r2': (1.0, 0.0)})   # 2 m apart: they repel
+    a1_seen = [False]
+
+    def tick():
+        msg = PoseArray()
+        msg.header.frame_id = 'map'
+        now = ear.node.get_clock().now().nanoseconds
+        msg.header.stamp.sec, msg.header.stamp.nanosec = now // 10 ** 9, now % 10 ** 9
+        for k in range(3):
+            pose = Pose()
+            pose.position.x = float(k) if (k != 1 or a1_seen[0]) else math.nan
+            pose.position.y = pose.position.x
+            msg.poses.append(pose)
+        poses.publish(msg)
+        params.publish(matrix(theta, ('agent', 'param')))
+    ear.node.create_timer(0.25, tick)
+    assert ear.spin(15.0, until=lambda: cmds['r1'] and cmds['r1'][-1][1].linear.x < -0.05)
+    ear.spin(2.0)
+    assert all(m.linear.x == m.linear.y == 0.0 for _, m in cmds['r2']), \
+        'r2 followed a law its animal had not been in the herd for'
+    a1_seen[0] = True
+    assert ear.spin(10.0, until=lambda: cmds['r2'][-1][1].linear.x > 0.05)
+
+
 def test_the_fleet_starts_together_once_every_robot_has_reported(graph):
     # the same live model and robots as above, but r2's odometry comes 3 s after r1's:
     # r1 alone is not driven (a swarm law of the robots heard so far would be another law)

@@ -12,6 +12,7 @@ from geometry_msgs.msg import PoseArray
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, String
 
+from herd_ros.control.animal_steps import AnimalSteps
 from herd_ros.control.damping import damping_check
 from herd_ros.control.fleet_observation import FleetObservation
 from herd_ros.control.herd_follower import HerdClockHold, HerdFollower, follower_for
@@ -53,7 +54,10 @@ class HerdModelPolicy:
         # the estimator's structure says which pose is which animal)
         self.match_pace = bool(p['match_pace']) and self.noise and self.source == 'topic'
         self.pace: PaceMatch | None = None
-        self._pace_for = self._pace_index = None   # the structure the robots' rows are for
+        self._rows_for = self._robot_rows = None   # the structure the robots' rows are for
+        # the model steps each animal has been in the herd: a robot follows its animal's
+        # live law once it has min_updates of them (animal_steps)
+        self.steps: AnimalSteps | None = None
         if self.source == 'file':
             model = self._model_from_parameters()
             problem, warning = damping_check(model.damping, list(model.agents))
@@ -81,9 +85,8 @@ class HerdModelPolicy:
                                      lambda msg: self.on_range(msg, 'home'), 10)
             node.create_subscription(Float64MultiArray, '/herd/model/place',
                                      lambda msg: self.on_range(msg, 'place'), 10)
-            if self.match_pace:
-                node.create_subscription(PoseArray, '/herd/poses', self.on_herd_poses,
-                                         QoSProfile(depth=100))
+            node.create_subscription(PoseArray, '/herd/poses', self.on_herd_poses,
+                                     QoSProfile(depth=100))
         else:
             raise ParameterError(f'model_source must be file or topic, got {self.source!r}')
 
@@ -278,25 +281,41 @@ class HerdModelPolicy:
         f = self.pace.factors[self.node.owned]
         return f', pace-matched noise x{f.min():.2f}-{f.max():.2f}'
 
-    def on_herd_poses(self, msg: PoseArray):
-        """A herd tick: each robot against its animal for the pace match
-        (:class:`~herd_ros.control.pace_match.PaceMatch`; the robots' positions are their
-        latest odometry, timed by its own stamps: at a fast replay it arrives in bursts)."""
-        st, follower = self.structure, self.follower
-        if st is None or follower is None or len(msg.poses) != len(st.agents):
-            return
-        animals = np.array([(q.position.x, q.position.y) for q in msg.poses], dtype=float)
-        if self._pace_for is not st:              # each robot's animal's row of the poses
+    def robot_rows(self) -> list[int] | None:
+        """Each robot's animal's row of the estimator's agents (None before the structure,
+        or when the assignment does not fit it)."""
+        st = self.structure
+        if st is None:
+            return None
+        if self._rows_for is not st:
             try:
                 where = {a: i for i, a in enumerate(st.agents)}
-                self._pace_index = [where[a] for a in self._assignment(list(st.agents))]
+                self._robot_rows = [where[a] for a in self._assignment(list(st.agents))]
             except ParameterError:
-                return
-            self._pace_for = st
-        index = self._pace_index
+                self._robot_rows = None
+            self._rows_for = st
+        return self._robot_rows
+
+    def on_herd_poses(self, msg: PoseArray):
+        """A herd tick: the model steps each animal has been in the herd
+        (:class:`~herd_ros.control.animal_steps.AnimalSteps`), and each robot against its
+        animal for the pace match (:class:`~herd_ros.control.pace_match.PaceMatch`; the
+        robots' positions are their latest odometry, timed by its own stamps: at a fast
+        replay it arrives in bursts)."""
+        st = self.structure
+        if st is None or len(msg.poses) != len(st.agents):
+            return
+        animals = np.array([(q.position.x, q.position.y) for q in msg.poses], dtype=float)
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        if self.steps is None or self.steps.dt != st.dt or len(self.steps.count) != len(
+                st.agents):
+            self.steps = AnimalSteps(len(st.agents), st.dt)
+        self.steps.observe(t, animals)
+        follower, index = self.follower, self.robot_rows()
+        if not self.match_pace or follower is None or index is None:
+            return
         if self.pace is None or self.pace.lag != follower.dt or self.pace.n != len(index):
             self.pace = PaceMatch(len(index), follower.dt)
-        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         node = self.node
         if self.pace.observe(t, animals[index], node.odom_stamp, node.positions):
             follower.noise_gain = self.pace.factors.copy()
@@ -305,6 +324,19 @@ class HerdModelPolicy:
             node.get_logger().info(f'pace match: noise factors {f.min():.2f}-{f.max():.2f} '
                                    f'(each robot\'s speed against its animal\'s)',
                                    throttle_duration_sec=30.0)
+
+    def waiting(self) -> np.ndarray | None:
+        """(R,) the robots whose animal has been in the herd for fewer than
+        ``model_min_updates`` model steps (they hold still), or None when none waits."""
+        if self.source != 'topic' or self.min_updates <= 0:
+            return None
+        index = self.robot_rows()
+        if index is None:
+            return None
+        if self.steps is None:
+            return np.ones(len(index), dtype=bool)
+        wait = ~self.steps.ready(self.min_updates)[index]
+        return wait if wait.any() else None
 
     # -- the policy -----------------------------------------------------------------------
     def command(self, state: FleetObservation) -> np.ndarray:
@@ -317,8 +349,14 @@ class HerdModelPolicy:
         if state.period < dt:
             if getattr(self, 'hold', None) is None or self.hold.dt != dt:
                 self.hold = HerdClockHold(dt)
-            return self.hold.command(self.follower, state.last_command, state.positions,
-                                     state.time, state.active)
-        self.hold = None
-        return self.follower.advance(state.last_command, state.positions, state.period,
-                                     state.active)
+            command = self.hold.command(self.follower, state.last_command, state.positions,
+                                        state.time, state.active)
+        else:
+            self.hold = None
+            command = self.follower.advance(state.last_command, state.positions,
+                                            state.period, state.active)
+        wait = self.waiting()
+        if wait is not None and len(wait) == len(command):
+            # a robot whose animal's law is still young holds still (animal_steps)
+            command = np.where(wait[:, None], 0.0, command)
+        return command

@@ -228,11 +228,14 @@ HERD_MODEL = {
              'followed with a warning. Adopting and refusing are logged.')),
     'model_min_updates': Param(
         0,
-        'topic: ignore the first N model updates',
+        'topic: ignore the first N model updates; a robot waits for N model steps of its animal',
         range=(0, 1000000000),
         doc=("topic only: ignore the first N model updates (an estimator's "
              'first estimates are poor;\n'
-             'robots hold still until a model is accepted).')),
+             'robots hold still until a model is accepted); and a robot holds still until '
+             'its animal\n'
+             'has been on /herd/poses in N model steps (a collar that starts late has a young '
+             'law).')),
 }
 
 FLOCKING = {
