@@ -356,6 +356,14 @@ class HerdModelPolicy:
             command = self.follower.advance(state.last_command, state.positions,
                                             state.period, state.active)
         wait = self.waiting()
+        waiting = () if wait is None else tuple(np.flatnonzero(wait))
+        if waiting != getattr(self, '_waiting', ()):
+            self._waiting = waiting
+            names = [self.robots[k] for k in waiting if k < len(self.robots)]
+            self.node.get_logger().info(
+                f'{", ".join(names)} hold still until their animal has been in the herd '
+                f'for {self.min_updates} model steps' if names else
+                'every robot follows its animal\'s law')
         if wait is not None and len(wait) == len(command):
             # a robot whose animal's law is still young holds still (animal_steps)
             command = np.where(wait[:, None], 0.0, command)

@@ -13,7 +13,7 @@ import numpy as np
 
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import HerdModel
-from herd_ros.model.noise_regimes import noise_for
+from herd_ros.model.noise_regimes import GaussianNoise, noise_for
 from herd_ros.model.velocity_memory import remember
 from herd_ros.trajectory import HerdTrajectory
 
@@ -71,7 +71,9 @@ def simulate_batch(model: HerdModel, steps: int, initial_positions: np.ndarray,
     ``seed=seeds[b]`` from ``initial_positions[b]``, ``initial_velocities[b]`` (B, N, 2)
     each, stacked (B, steps, N, 2). The law is evaluated on all members at every step
     (one Python step for B runs: a calibration's or a fidelity check's many runs cost little
-    more than one); each member keeps its own generator, so its run is the same as alone.
+    more than one); each member keeps its own generator, so its run is the same as alone
+    (to the last bit; with a velocity alignment term, whose sums over members run in
+    another order, to rounding).
     Members are simulated in chunks of at most :data:`BATCH_POSITIONS` positions."""
     if steps < 1:
         raise HerdInputError(f'steps must be ≥ 1, got {steps}')
@@ -92,7 +94,6 @@ def simulate_batch(model: HerdModel, steps: int, initial_positions: np.ndarray,
 
 def _simulate_members(model, steps, p, u, seeds):
     """:func:`simulate_batch` of one chunk of members (B, steps, N, 2)."""
-    from herd_ros.model.noise_regimes import GaussianNoise
     sources = [noise_for(model, seed) for seed in seeds]
     blocks = all(isinstance(s, GaussianNoise) for s in sources)
     out = np.empty((len(p), steps) + p.shape[1:])
