@@ -505,3 +505,45 @@ def test_the_fit_keeps_the_places_of_a_herd_its_law_lets_drift_apart():
     held = free_run_fidelity(kept.model, test)['herd']['distance']
     assert far['relative'] > 0.5, far
     assert abs(held['relative']) < 0.35, held
+
+
+def test_the_place_centroid_counts_only_the_agents_asked_for():
+    """By hand: three agents at (0, 0), (4, 0) and (1000, 0). Counting all, the first's
+    others' centroid is (502, 0); with the third left out it is (4, 0); the third's own
+    offset is still taken, from the centroid of the two counted."""
+    from herd_ros.model.herd_place import others_centroid, place_offsets
+    p = np.array([[0.0, 0.0], [4.0, 0.0], [1000.0, 0.0]])
+    np.testing.assert_allclose(others_centroid(p)[0], [502.0, 0.0])
+    counted = np.array([True, True, False])
+    np.testing.assert_allclose(others_centroid(p, counted), [[4.0, 0.0], [0.0, 0.0],
+                                                             [2.0, 0.0]])
+    np.testing.assert_allclose(place_offsets(p, counted)[2], [998.0, 0.0])
+
+
+def test_a_robot_whose_animal_is_out_of_the_herd_does_not_pull_the_others():
+    """Two robots at their animals' places (4 m apart) and a third 1.3 km off whose animal
+    has no pose: the third moves neither robot's place pull; counted (its animal back in
+    the herd), it drags both towards it."""
+    import dataclasses
+
+    from herd_ros.model.rbf_field import agent_fields
+    from herd_ros.synthesis.known_truth import make_truth_model
+    truth = make_truth_model(3, seed=1)
+    # each animal's place: offset (-2, 0), (2, 0), (0, 0) from the others' centroid; ranges
+    # of 1 m std; gain 0.1 per step
+    mean = np.array([[-2.0, 0.0], [2.0, 0.0], [0.0, 0.0]])
+    gain = np.tile(0.1 * np.eye(2), (3, 1, 1))
+    cov = np.tile(np.eye(2), (3, 1, 1))
+    model = dataclasses.replace(truth, meta={'herd_place': (mean, gain, cov)})
+    follower = HerdFollower(model, list(model.agents))
+    m = follower.model
+    p = np.array([[0.0, 0.0], [4.0, 0.0], [1300.0, 0.0]])
+    active = np.ones(3, dtype=bool)
+
+    def place_pull():
+        return follower.environment(p, active) - agent_fields(p, m._centers, m._sigma,
+                                                              m._coef)
+    follower.in_herd = np.array([True, True, False])
+    np.testing.assert_allclose(place_pull()[:2], 0.0, atol=1e-12)    # at their places
+    follower.in_herd[:] = True
+    assert (place_pull()[:2, 0] > 1.0).all()                         # dragged east

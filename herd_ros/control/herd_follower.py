@@ -39,8 +39,9 @@ import numpy as np
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import AgentLaw, HerdModel, pairwise_geometry
 from herd_ros.model.noise_regimes import noise_for, subset_regimes
-from herd_ros.model.herd_place import subset_place
-from herd_ros.model.space_use_field import subset_home
+from herd_ros.model.herd_place import place_drift, subset_place
+from herd_ros.model.rbf_field import agent_fields
+from herd_ros.model.space_use_field import home_drift, subset_home
 
 #: Herd-clock steps the hold steps the law through at once; a longer jump of the clock (sim
 #: time starting, a replay resumed) restarts the law from what the robots do.
@@ -137,6 +138,20 @@ class HerdFollower:
         self.noise = bool(noise)
         self.noise_source = noise_for(self.model, seed)
         self.noise_gain = np.ones(len(self.robots))
+        self.in_herd = np.ones(len(self.robots), dtype=bool)
+
+    def environment(self, positions: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """g_k of every active robot (0 for the others): its field and home pull at its own
+        position, and the pull to its place among the other robots that are active and
+        whose animal is in the herd (:attr:`in_herd`: the offsets its animal's place was
+        learned from leave absent animals out, so a robot whose animal's collar is silent
+        or has not started must not move the others' centroid)."""
+        m = self.model
+        p = np.where(active[:, None], positions, np.nan)
+        counted = active & (self.in_herd if len(self.in_herd) == len(p) else True)
+        g = (agent_fields(p, m._centers, m._sigma, m._coef) + home_drift(m.meta, p)
+             + place_drift(m.meta, p, counted))
+        return np.nan_to_num(g)
 
     def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Σ_{j active, j≠k} f_kj(p_k, p_j) + g_k(p_k) for every robot: (R, 2) -> (R, 2).
@@ -152,7 +167,7 @@ class HerdFollower:
         magnitude = self.theta1 - self.theta2 / np.maximum(dist, MIN_DISTANCE)
         magnitude = np.where(active[None, :] & ~np.eye(r, dtype=bool), magnitude, 0.0)
         interaction = (magnitude[..., None] * np.nan_to_num(unit)).sum(-2)
-        return interaction + self.model.environment(p_safe)
+        return interaction + self.environment(p, active)
 
     def alignment(self, positions: np.ndarray, velocity: np.ndarray,
                   active: np.ndarray | None = None):
@@ -343,6 +358,7 @@ class SharedLawFollower(HerdFollower):
         self.noise = bool(noise)
         self.noise_source = noise_for(self.model, seed)
         self.noise_gain = np.ones(len(self.robots))
+        self.in_herd = np.ones(len(self.robots), dtype=bool)
 
     def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Σ_j F(d) e + g for every robot; inactive robots (NaN, stale) exert nothing."""
@@ -350,8 +366,7 @@ class SharedLawFollower(HerdFollower):
         active = np.ones(len(p), bool) if active is None else np.asarray(active, bool)
         active = active & np.isfinite(p).all(-1)
         p_active = np.where(active[:, None], p, np.nan)
-        p_safe = np.where(active[:, None], p, 0.0)
-        return self.model.interaction(p_active) + self.model.environment(p_safe)
+        return self.model.interaction(p_active) + self.environment(p, active)
 
 
 def follower_for(model, assignment: list[str], robots: list[str] | None = None,

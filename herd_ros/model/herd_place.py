@@ -47,14 +47,17 @@ from herd_ros.model.space_use_field import edge_pull, range_gain
 PLACE_CAP = 0.2
 
 
-def others_centroid(positions: np.ndarray) -> np.ndarray:
-    """c_−i, the mean position of the agents other than i that are present (finite), for
-    positions (..., N, 2); NaN where no other agent is."""
+def others_centroid(positions: np.ndarray, counted: np.ndarray | None = None) -> np.ndarray:
+    """c_−i, the mean position of the agents other than i that are present (finite) and,
+    given ``counted`` (N,), counted, for positions (..., N, 2); NaN where no other agent
+    is."""
     p = np.asarray(positions, dtype=float)
     n = p.shape[-2]
-    if n > 1 and np.isfinite(p).all():                  # everyone present (a free run)
+    if counted is None and n > 1 and np.isfinite(p).all():   # everyone present (a free run)
         return (p.sum(axis=-2, keepdims=True) - p) / (n - 1)
     seen = np.isfinite(p).all(axis=-1, keepdims=True)
+    if counted is not None:
+        seen = seen & np.asarray(counted, dtype=bool)[:, None]
     q = np.where(seen, p, 0.0)
     total = q.sum(axis=-2, keepdims=True) - q
     count = seen.sum(axis=-2, keepdims=True) - seen
@@ -62,10 +65,11 @@ def others_centroid(positions: np.ndarray) -> np.ndarray:
         return np.where(count > 0, total / count, np.nan)
 
 
-def place_offsets(positions: np.ndarray) -> np.ndarray:
-    """d_i = p_i − c_−i for positions (..., N, 2) (NaN where p_i or every other is)."""
+def place_offsets(positions: np.ndarray, counted: np.ndarray | None = None) -> np.ndarray:
+    """d_i = p_i − c_−i for positions (..., N, 2) (NaN where p_i or every other is; the
+    centroid over the ``counted`` others only, when given)."""
     p = np.asarray(positions, dtype=float)
-    return p - others_centroid(p)
+    return p - others_centroid(p, counted)
 
 
 def herd_place(positions: np.ndarray, damping, noise_cov, dt: float,
@@ -93,15 +97,17 @@ def place_coupling(n_agents: int) -> float:
     return n_agents / (n_agents - 1.0) if n_agents > 1 else 1.0
 
 
-def place_drift(meta: dict | None, positions: np.ndarray) -> np.ndarray | float:
+def place_drift(meta: dict | None, positions: np.ndarray,
+                counted: np.ndarray | None = None) -> np.ndarray | float:
     """(P1) for every agent from ``meta['herd_place']``, positions (..., N, 2); 0.0
     without it (and for an agent with no other present). With a fourth entry, the cap c_i
-    (N,) of a fitted law's places, each pull is shortened to at most c_i (P2)."""
+    (N,) of a fitted law's places, each pull is shortened to at most c_i (P2). ``counted``
+    (N,): the agents the others' centroid is taken over (default: every one present)."""
     place = (meta or {}).get('herd_place')
     if place is None:
         return 0.0
     mean, gain, cov = place[:3]
-    pull = edge_pull(place_offsets(positions) - mean, gain, cov)
+    pull = edge_pull(place_offsets(positions, counted) - mean, gain, cov)
     if len(place) > 3:
         size = np.linalg.norm(pull, axis=-1, keepdims=True)
         pull = pull * np.minimum(1.0, np.asarray(place[3])[:, None]

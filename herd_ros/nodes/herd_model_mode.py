@@ -158,6 +158,7 @@ class HerdModelPolicy:
                                      noise=self.noise, seed=self.rng)
         # ... and the regime chains run on: a rest or a move outlives the model update
         carry_regime_state(previous, self.follower.noise_source)
+        self._mark_in_herd()
         if self.pace is not None and len(self.pace.factors) == len(self.follower.robots):
             self.follower.noise_gain = self.pace.factors.copy()
         self.updates += 1
@@ -283,8 +284,8 @@ class HerdModelPolicy:
 
     def robot_rows(self) -> list[int] | None:
         """Each robot's animal's row of the estimator's agents (None before the structure,
-        or when the assignment does not fit it)."""
-        st = self.structure
+        or when the assignment does not fit it; a model file has none)."""
+        st = getattr(self, 'structure', None)
         if st is None:
             return None
         if self._rows_for is not st:
@@ -311,6 +312,8 @@ class HerdModelPolicy:
                 st.agents):
             self.steps = AnimalSteps(len(st.agents), st.dt)
         self.steps.observe(t, animals)
+        self.present = np.isfinite(animals).all(axis=-1)
+        self._mark_in_herd()
         follower, index = self.follower, self.robot_rows()
         if not self.match_pace or follower is None or index is None:
             return
@@ -324,6 +327,15 @@ class HerdModelPolicy:
             node.get_logger().info(f'pace match: noise factors {f.min():.2f}-{f.max():.2f} '
                                    f'(each robot\'s speed against its animal\'s)',
                                    throttle_duration_sec=30.0)
+
+    def _mark_in_herd(self):
+        """Tell the follower which robots' animals have a pose at the latest herd tick (the
+        others do not count in the robots' centroid for the place pulls)."""
+        present, index = getattr(self, 'present', None), self.robot_rows()
+        if self.follower is None or present is None or index is None or \
+                len(index) != len(self.follower.robots):
+            return
+        self.follower.in_herd = present[index]
 
     def waiting(self) -> np.ndarray | None:
         """(R,) the robots whose animal has been in the herd for fewer than
