@@ -28,7 +28,10 @@ law fitted offline (:func:`with_herd_place`) also the cap c_i (N,) of each pull,
 
 (a drift of at most a fraction of the noise per step: one step ahead the places cost at
 most √(1 + c²) − 1 in RMS, run freely they still hold). A robot fleet keeps each robot's
-place among the other robots (their centroid stands for the herd's). The places the live
+place among the other robots (their centroid stands for the herd's; only the robots whose
+animal has a pose count in it, as only the animals present counted in the offsets the
+places were learned from: :meth:`~herd_ros.control.herd_follower.HerdFollower
+.environment`). The places the live
 estimator publishes for the robots carry no cap: its one-step predictions are its
 recursive least-squares law alone, which has no range pulls, so (P2)'s reason does not
 arise there.
