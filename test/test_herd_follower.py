@@ -62,7 +62,7 @@ def test_fractional_steps_relax_to_the_same_fixed_point():
     model = two_animals(theta1=(0.0, 0.0), theta2=(0.0, 0.0))
     model.laws['cow_a'].field_u[:] = 0.0
     follower = HerdFollower(model, ['cow_a', 'cow_b'])
-    follower.model.environment = lambda p: np.array([[0.3, 0.0], [0.0, -0.2]])
+    follower.environment = lambda p, active: np.array([[0.3, 0.0], [0.0, -0.2]])
     p = np.zeros((2, 2))
     u0 = np.zeros((2, 2))
     alpha, ticks = 0.1, 50
