@@ -58,6 +58,8 @@ class HerdModelPolicy:
         # the model steps each animal has been in the herd: a robot follows its animal's
         # live law once it has min_updates of them (animal_steps)
         self.steps: AnimalSteps | None = None
+        self.present = None        # (N,) which animals had a pose at the latest herd tick
+        self._waiting = ()         # the robots that held still at the last command
         if self.source == 'file':
             model = self._model_from_parameters()
             problem, warning = damping_check(model.damping, list(model.agents))
@@ -331,7 +333,7 @@ class HerdModelPolicy:
     def _mark_in_herd(self):
         """Tell the follower which robots' animals have a pose at the latest herd tick (the
         others do not count in the robots' centroid for the place pulls)."""
-        present, index = getattr(self, 'present', None), self.robot_rows()
+        present, index = self.present, self.robot_rows()
         if self.follower is None or present is None or index is None or \
                 len(index) != len(self.follower.robots):
             return
@@ -369,7 +371,7 @@ class HerdModelPolicy:
                                             state.period, state.active)
         wait = self.waiting()
         waiting = () if wait is None else tuple(np.flatnonzero(wait))
-        if waiting != getattr(self, '_waiting', ()):
+        if waiting != self._waiting:
             self._waiting = waiting
             names = [self.robots[k] for k in waiting if k < len(self.robots)]
             self.node.get_logger().info(
