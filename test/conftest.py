@@ -4,9 +4,11 @@ Set at import time, before any test module can import rclpy, so in-process nodes
 it; subprocess tests take ``ros_env`` (a fresh domain id each test, so leftovers of one
 test never talk to the next).
 """
+import atexit
 import itertools
 import os
 import random
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -33,7 +35,9 @@ if _WORKERS > 1:
     os.environ.setdefault('HERD_ROS_THREADS', '1')
 # Nodes write their files (estimator checkpoint and model) under $ROS_HOME/herd_ros: the
 # tests' go to a directory of their own, never the user's ~/.ros
+# (removed when this process ends: each xdist worker and the controller make their own)
 os.environ['ROS_HOME'] = tempfile.mkdtemp(prefix='herd_ros_test_ros_home_')
+atexit.register(shutil.rmtree, os.environ['ROS_HOME'], ignore_errors=True)
 
 REPO = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent

@@ -24,6 +24,7 @@ import argparse
 import json
 import os
 import random
+import shutil
 import struct
 import subprocess
 import sys
@@ -210,7 +211,7 @@ def run_once(n, seconds, rate, executor_name, env, shared=False):
     node_proc = subprocess.Popen([str(Path(sys.executable).parent / 'gps_ingest'),
                                   '--ros-args', '--params-file', str(params)],
                                  env=env, stdout=log, stderr=subprocess.STDOUT)
-    pub_proc = None
+    pub_proc, alive = None, False
     context = rclpy.Context()
     rclpy.init(context=context)
     try:
@@ -276,6 +277,11 @@ def run_once(n, seconds, rate, executor_name, env, shared=False):
                     proc.kill()
                     proc.wait()
         rclpy.shutdown(context=context)
+        log.close()
+    if alive:
+        shutil.rmtree(tmp, ignore_errors=True)     # the node's log matters only if it died
+    else:
+        print(f'the node died; its log: {tmp / "gps_ingest.log"}', file=sys.stderr)
     counted, accepted = measurer.totals or (0, 0)
     received = sum(measurer.received.values())
     lat = np.array(measurer.latency) * 1e3

@@ -13,6 +13,7 @@ the spread (max − min) over the rest, relative to the median, is the figure re
 """
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -109,6 +110,12 @@ def main(argv=None):
             p.wait(timeout=15)
         except subprocess.TimeoutExpired:
             p.kill()
+    for f in logs.values():
+        f.close()
+    if all(alive.values()):
+        shutil.rmtree(tmp, ignore_errors=True)     # the nodes' logs matter only if one died
+    else:
+        print(f'a node died; the logs: {tmp}', file=sys.stderr)
     sent = next((x for x in lines if 'sent' in x), {})
     print(f'\n{"node":>10} {"RSS after warm-up: min":>22} {"median":>8} {"max":>8} '
           f'{"spread":>8} {"cpu":>6}')
