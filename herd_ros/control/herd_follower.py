@@ -145,13 +145,12 @@ class HerdFollower:
         position, and the pull to its place among the other robots that are active and
         whose animal is in the herd (:attr:`in_herd`: the offsets its animal's place was
         learned from leave absent animals out, so a robot whose animal's collar is silent
-        or has not started must not move the others' centroid), everywhere, not only beyond
-        the place's edge ((P3) of :mod:`herd_ros.model.herd_place`)."""
+        or has not started must not move the others' centroid)."""
         m = self.model
         p = np.where(active[:, None], positions, np.nan)
         counted = active & (self.in_herd if len(self.in_herd) == len(p) else True)
         g = (agent_fields(p, m._centers, m._sigma, m._coef) + home_drift(m.meta, p)
-             + place_drift(m.meta, p, counted, edge=False))
+             + place_drift(m.meta, p, counted))
         return np.nan_to_num(g)
 
     def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:

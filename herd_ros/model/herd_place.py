@@ -36,20 +36,6 @@ estimator publishes for the robots carry no cap: its one-step predictions are it
 recursive least-squares law alone, which has no range pulls, so (P2)'s reason does not
 arise there.
 
-A robot feels the pull everywhere, not only beyond the edge:
-
-    g_k^place = −K_k (d_k − m_k)                                                       (P3)
-
-the Ornstein-Uhlenbeck pull itself, whose stationary covariance is S_k for the noise the
-gain was computed for. The edge form leaves a fitted law alone where its herd keeps its
-places (no cost one step ahead); a robot has no step to predict, only a shape to keep, and
-under the edge form its offset wanders over the whole range and as far again beyond it (a
-gain that holds the covariance at S when it acts everywhere is weak on the excess alone):
-three robots of damping and noise with the places of a cohesive herd keep offsets of 2.7
-times its variance under (P1), and its variance under (P3) (``test_long_run_terms.py``).
-On 12 h of four synthetic cows through duty-cycled collars the live robots' distances went
-from +156 % of the animals' to +52–55 %.
-
 Plain numpy; no ROS.
 """
 from __future__ import annotations
@@ -115,22 +101,16 @@ def place_coupling(n_agents: int) -> float:
 
 
 def place_drift(meta: dict | None, positions: np.ndarray,
-                counted: np.ndarray | None = None, edge: bool = True) -> np.ndarray | float:
+                counted: np.ndarray | None = None) -> np.ndarray | float:
     """(P1) for every agent from ``meta['herd_place']``, positions (..., N, 2); 0.0
     without it (and for an agent with no other present). With a fourth entry, the cap c_i
     (N,) of a fitted law's places, each pull is shortened to at most c_i (P2). ``counted``
-    (N,): the agents the others' centroid is taken over (default: every one present).
-    ``edge=False``: the pull everywhere, (P3), as robots keep their places."""
+    (N,): the agents the others' centroid is taken over (default: every one present)."""
     place = (meta or {}).get('herd_place')
     if place is None:
         return 0.0
     mean, gain, cov = place[:3]
-    d = place_offsets(positions, counted) - mean
-    if edge:
-        pull = edge_pull(d, gain, cov)
-    else:
-        pull = -np.einsum('nij,...nj->...ni', np.asarray(gain, dtype=float),
-                          np.nan_to_num(d))
+    pull = edge_pull(place_offsets(positions, counted) - mean, gain, cov)
     if len(place) > 3:
         size = np.linalg.norm(pull, axis=-1, keepdims=True)
         pull = pull * np.minimum(1.0, np.asarray(place[3])[:, None]
