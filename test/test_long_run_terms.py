@@ -547,3 +547,18 @@ def test_a_robot_whose_animal_is_out_of_the_herd_does_not_pull_the_others():
     np.testing.assert_allclose(place_pull()[:2], 0.0, atol=1e-12)    # at their places
     follower.in_herd[:] = True
     assert (place_pull()[:2, 0] > 1.0).all()                         # dragged east
+
+
+def test_a_range_that_has_not_spread_pulls_nothing_and_warns_nothing():
+    """An animal seen at one place so far (Σ = 0, gain 0) beside one with a range of 1 m
+    std and gain 0.1: the first is pulled by nothing however far it is, with no overflow
+    warning; the second, 3 m out, by 0.1 × 3 × (1 − 2/3) = 0.1 towards its centre."""
+    import warnings
+
+    from herd_ros.model.space_use_field import edge_pull
+    cov = np.stack([np.zeros((2, 2)), np.eye(2)])
+    gain = np.stack([np.zeros((2, 2)), 0.1 * np.eye(2)])
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        pull = edge_pull(np.array([[1e3, 5.0], [3.0, 0.0]]), gain, cov)
+    np.testing.assert_allclose(pull, [[0.0, 0.0], [-0.1, 0.0]], atol=1e-12)
