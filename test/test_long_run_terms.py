@@ -562,3 +562,47 @@ def test_a_range_that_has_not_spread_pulls_nothing_and_warns_nothing():
         warnings.simplefilter('error')
         pull = edge_pull(np.array([[1e3, 5.0], [3.0, 0.0]]), gain, cov)
     np.testing.assert_allclose(pull, [[0.0, 0.0], [-0.1, 0.0]], atol=1e-12)
+
+
+def test_robots_feel_their_place_everywhere_at_the_share_their_law_leaves():
+    """(P3): robots of damping and noise alone, following the places of a cohesive herd of
+    three: the law's own free run drifts apart, the share is all of the gain, and each
+    offset keeps the place's covariance S (the Ornstein-Uhlenbeck pull's stationary
+    covariance, by the gain's construction). At the edge only (share 0) the same gain lets
+    the offsets spread to more than twice S. A law whose attraction already holds its
+    agents at about S (θ1 = 0.1: alone 1.2 S) keeps a small share and stays near S."""
+    import dataclasses
+
+    from herd_ros.model.herd_place import herd_place, place_offsets
+    rng = np.random.default_rng(1)
+    herd = (np.cumsum(rng.normal(0.0, 0.3, (3000, 1, 2)), axis=0)
+            + np.array([[-5.0, 0.0], [5.0, 0.0], [0.0, 8.0]]) + rng.normal(0, 1.0, (3000, 3, 2)))
+
+    def robots(theta1, share=None, n=20000, warmup=3000):
+        model = damping_model([0.8, 0.8, 0.8], q=0.02)
+        for a in model.agents:
+            model.laws[a].theta1[:] = theta1
+        q = np.stack([model.laws[a].noise_cov for a in model.agents])
+        place = herd_place(herd, model.damping, q, model.dt)
+        kept = dataclasses.replace(model, meta={**model.meta, 'herd_place': place})
+        follower = HerdFollower(kept, list(kept.agents), noise=True, seed=4)
+        found = follower.find_place_share(herd[0])
+        if share is not None:
+            follower.place_share = np.full(3, share)
+        p, u, out = herd[0].copy(), np.zeros((3, 2)), []
+        for t in range(n):
+            p, u = p + model.dt * u, follower.advance(u, p, model.dt)
+            if t >= warmup:
+                out.append(place_offsets(p))
+        d = np.array(out)
+        spread = [np.trace(np.cov(d[:, i].T)) / np.trace(place[2][i]) for i in range(3)]
+        return found, np.array(spread), d.mean(0) - place[0]
+    share, spread, bias = robots(0.0)
+    assert (share > 0.95).all(), share
+    assert ((spread > 0.8) & (spread < 1.2)).all(), spread
+    assert np.abs(bias).max() < 0.2, bias
+    _, wide, _ = robots(0.0, share=0.0)
+    assert (wide > 2.0).all(), wide
+    share, spread, _ = robots(0.1)
+    assert (share < 0.25).all(), share
+    assert ((spread > 0.8) & (spread < 1.2)).all(), spread
