@@ -350,16 +350,9 @@ class HerdModelPolicy:
             follower.place_share = previous[1]
             return
         positions = getattr(self.node, 'positions', None)
-        try:
-            share = follower.find_place_share(
-                positions if positions is not None and len(positions) == len(follower.robots)
-                else None)
-        except Exception as exc:        # a law the simulator refuses: the edge pull alone
-            follower.place_share = None
-            self.node.get_logger().warning(
-                f'place shares not worked out ({exc}); the place pull acts at the edge only',
-                throttle_duration_sec=60.0)
-            return
+        share = follower.find_place_share(
+            positions if positions is not None and len(positions) == len(follower.robots)
+            else None)
         self._share_from = (self.updates, share)
         self.node.get_logger().info(
             f'place pull everywhere at {share.min():.2f}-{share.max():.2f} of its gain '
