@@ -39,7 +39,7 @@ import numpy as np
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import AgentLaw, HerdModel, pairwise_geometry
 from herd_ros.model.noise_regimes import noise_for, subset_regimes
-from herd_ros.model.herd_place import law_place_share, place_drift, subset_place
+from herd_ros.model.herd_place import place_drift, subset_place
 from herd_ros.model.rbf_field import agent_fields
 from herd_ros.model.space_use_field import home_drift, subset_home
 
@@ -139,32 +139,19 @@ class HerdFollower:
         self.noise_source = noise_for(self.model, seed)
         self.noise_gain = np.ones(len(self.robots))
         self.in_herd = np.ones(len(self.robots), dtype=bool)
-        self.place_share = None
 
     def environment(self, positions: np.ndarray, active: np.ndarray) -> np.ndarray:
         """g_k of every active robot (0 for the others): its field and home pull at its own
         position, and the pull to its place among the other robots that are active and
         whose animal is in the herd (:attr:`in_herd`: the offsets its animal's place was
         learned from leave absent animals out, so a robot whose animal's collar is silent
-        or has not started must not move the others' centroid), everywhere at the share
-        :attr:`place_share` of its gain and at least at the edge of its range ((P3), (P1) of
-        :mod:`herd_ros.model.herd_place`)."""
+        or has not started must not move the others' centroid)."""
         m = self.model
         p = np.where(active[:, None], positions, np.nan)
         counted = active & (self.in_herd if len(self.in_herd) == len(p) else True)
         g = (agent_fields(p, m._centers, m._sigma, m._coef) + home_drift(m.meta, p)
-             + place_drift(m.meta, p, counted, self.place_share))
+             + place_drift(m.meta, p, counted))
         return np.nan_to_num(g)
-
-    def find_place_share(self, positions: np.ndarray | None = None) -> np.ndarray | None:
-        """Work out :attr:`place_share`, s_k of (P3) (:func:`~herd_ros.model.herd_place
-        .law_place_share`: free runs of this follower's law without its places, from the
-        places' formation about the robots' ``positions``); None without places."""
-        if (self.model.meta or {}).get('herd_place') is None:
-            self.place_share = None
-        else:
-            self.place_share = law_place_share(self.model, positions)
-        return self.place_share
 
     def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Σ_{j active, j≠k} f_kj(p_k, p_j) + g_k(p_k) for every robot: (R, 2) -> (R, 2).
@@ -372,7 +359,6 @@ class SharedLawFollower(HerdFollower):
         self.noise_source = noise_for(self.model, seed)
         self.noise_gain = np.ones(len(self.robots))
         self.in_herd = np.ones(len(self.robots), dtype=bool)
-        self.place_share = None
 
     def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Σ_j F(d) e + g for every robot; inactive robots (NaN, stale) exert nothing."""

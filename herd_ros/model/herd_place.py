@@ -36,28 +36,13 @@ estimator publishes for the robots carry no cap: its one-step predictions are it
 recursive least-squares law alone, which has no range pulls, so (P2)'s reason does not
 arise there.
 
-A robot also feels the pull inside its range, at the share of the gain its law leaves:
-
-    g_k^place = −K_k (d_k − m_k) max(s_k, (1 − r₀/r_k)₊),
-    s_k = clip(1 − tr S_k / tr S_k^law, 0, 1)                                          (P3)
-
-S_k^law the covariance of the offset in free runs of the robots' law without its places
-(:func:`law_place_share`). The gain K_k, acting everywhere, holds an offset at S_k against
-the noise; acting beyond the edge only it lets the offset wander over the whole range and
-as far again beyond it (three robots of damping and noise with a cohesive herd's places:
-2.7 S). Everywhere, on a law whose interaction already holds the herd, it would hold the
-robots tighter than their animals. For an Ornstein-Uhlenbeck offset the variance goes as
-the inverse of the gain, so the law's own pull is K_k tr S_k / tr S_k^law and s_k is what
-it lacks (``test_long_run_terms.py``: damping alone, s = 1 and the robots' offsets at S;
-a law holding its agents at 1.2 S alone, s < 0.25 and near S).
-
 Plain numpy; no ROS.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from herd_ros.model.space_use_field import edge_factor, linear_pull, range_gain
+from herd_ros.model.space_use_field import edge_pull, range_gain
 
 
 #: c of (P2): a fitted law's place pull is at most c times its noise std per step (a
@@ -116,64 +101,21 @@ def place_coupling(n_agents: int) -> float:
 
 
 def place_drift(meta: dict | None, positions: np.ndarray,
-                counted: np.ndarray | None = None,
-                share: np.ndarray | None = None) -> np.ndarray | float:
+                counted: np.ndarray | None = None) -> np.ndarray | float:
     """(P1) for every agent from ``meta['herd_place']``, positions (..., N, 2); 0.0
     without it (and for an agent with no other present). With a fourth entry, the cap c_i
     (N,) of a fitted law's places, each pull is shortened to at most c_i (P2). ``counted``
-    (N,): the agents the others' centroid is taken over (default: every one present).
-    ``share`` s (N,): (P3), the pull everywhere at s_k of its gain, and at least (P1)."""
+    (N,): the agents the others' centroid is taken over (default: every one present)."""
     place = (meta or {}).get('herd_place')
     if place is None:
         return 0.0
     mean, gain, cov = place[:3]
-    d = np.nan_to_num(place_offsets(positions, counted) - mean)
-    factor = edge_factor(d, cov)
-    if share is not None:
-        factor = np.maximum(factor, np.asarray(share, dtype=float))
-    pull = linear_pull(d, gain) * factor[..., None]
+    pull = edge_pull(place_offsets(positions, counted) - mean, gain, cov)
     if len(place) > 3:
         size = np.linalg.norm(pull, axis=-1, keepdims=True)
         pull = pull * np.minimum(1.0, np.asarray(place[3])[:, None]
                                  / np.maximum(size, 1e-300))
     return pull
-
-
-#: (P3)'s free runs: seeds, model steps each, and the first steps left out
-SHARE_SEEDS, SHARE_STEPS, SHARE_BURN = 4, 600, 100
-
-
-def law_place_share(model, start: np.ndarray | None = None, seed: int = 0) -> np.ndarray:
-    """s_k (N,) of (P3) for ``model`` with places (``meta['herd_place']`` = (m, K, S)):
-
-        s_k = clip(1 − tr S_k / tr S_k^law, 0, 1)
-
-    S_k^law the covariance of agent k's offset from the others' centroid in free runs of the
-    law without its places (:data:`SHARE_SEEDS` runs of :data:`SHARE_STEPS` model steps from
-    the places' formation about the centroid of ``start`` (N, 2), the first
-    :data:`SHARE_BURN` left out). A law that holds its agents no looser than their places
-    gives 0; one that lets them drift apart (or diverges), 1."""
-    import dataclasses
-
-    from herd_ros.simulation.herd_simulator import simulate_batch
-    mean, gain, cov = (np.asarray(x, dtype=float) for x in model.meta['herd_place'][:3])
-    n = len(mean)
-    centre = (np.nanmean(np.asarray(start, dtype=float), axis=0)
-              if start is not None and np.isfinite(start).any() else np.zeros(2))
-    formation = centre + (mean - mean.mean(axis=0)) * (n - 1.0) / max(n, 1)
-    law = dataclasses.replace(model, meta={k: v for k, v in model.meta.items()
-                                           if k != 'herd_place'})
-    rng = np.random.default_rng(seed)
-    seeds = [int(x) for x in rng.integers(0, 2 ** 31, SHARE_SEEDS)]
-    with np.errstate(all='ignore'):
-        runs = simulate_batch(law, SHARE_STEPS, np.repeat(formation[None], SHARE_SEEDS, 0),
-                              np.zeros((SHARE_SEEDS, n, 2)), seeds)
-        d = place_offsets(runs[:, SHARE_BURN:]).reshape(-1, n, 2)
-        spread = np.nanvar(d, axis=0).sum(axis=-1)               # tr S^law (N,)
-        share = 1.0 - np.trace(cov, axis1=1, axis2=2) / spread
-    share = np.where(np.isfinite(share), share, 1.0)
-    return np.where(np.trace(np.abs(gain), axis1=1, axis2=2) > 0,
-                    np.clip(share, 0.0, 1.0), 0.0)
 
 
 def drawn_noise(model) -> np.ndarray:

@@ -225,28 +225,17 @@ def edge_pull(d: np.ndarray, gain: np.ndarray, cov: np.ndarray) -> np.ndarray:
     the excess beyond; NaN displacements give 0. A range that has not spread yet (Σ_i = 0,
     whose gain is 0) puts every displacement beyond its edge (r_i = ∞) without overflow
     warnings."""
-    d = np.nan_to_num(np.asarray(d, dtype=float))
-    return linear_pull(d, gain) * edge_factor(d, cov)[..., None]
-
-
-def edge_factor(d: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """(1 − r₀/r_i)₊ (..., N) of :func:`edge_pull` for displacements d (..., N, 2) (no
-    NaN) from the centres of ranges of covariance Σ_i (N, 2, 2)."""
     inv = range_inverse(cov)
+    d = np.nan_to_num(np.asarray(d, dtype=float))
+    k = np.asarray(gain, dtype=float)
     x, y = d[..., 0], d[..., 1]
     with np.errstate(over='ignore', invalid='ignore'):
         r = np.sqrt(np.maximum(inv[:, 0, 0] * x * x + (inv[:, 0, 1] + inv[:, 1, 0]) * x * y
                                + inv[:, 1, 1] * y * y, 1e-300))
     r = np.where(np.isnan(r), np.inf, r)
-    return np.clip(1.0 - HOME_RANGE_RADIUS / r, 0.0, None)
-
-
-def linear_pull(d: np.ndarray, gain: np.ndarray) -> np.ndarray:
-    """−K_i d_i for displacements d (..., N, 2) and gains K (N, 2, 2)."""
-    k = np.asarray(gain, dtype=float)
-    x, y = d[..., 0], d[..., 1]
-    return np.stack([-(k[:, 0, 0] * x + k[:, 0, 1] * y),
-                     -(k[:, 1, 0] * x + k[:, 1, 1] * y)], axis=-1)
+    beyond = np.clip(1.0 - HOME_RANGE_RADIUS / r, 0.0, None)
+    return np.stack([-(k[:, 0, 0] * x + k[:, 0, 1] * y) * beyond,
+                     -(k[:, 1, 0] * x + k[:, 1, 1] * y) * beyond], axis=-1)
 
 
 #: inverses of the range covariances :func:`edge_pull` was last given, by the array's

@@ -26,11 +26,6 @@ from herd_ros.nodes.ros_common import ParameterError, declare_parameters
 from herd_ros.params.controller import HERD_MODEL as HERD_MODEL_DEFAULTS
 
 
-#: model updates between two workings-out of the place shares (:meth:`HerdModelPolicy
-#: ._place_share`)
-PLACE_SHARE_EVERY = 60
-
-
 class HerdModelPolicy:
     """Mode ``herd_model``: each robot follows its assigned animal's learned law.
 
@@ -165,7 +160,6 @@ class HerdModelPolicy:
                                      noise=self.noise, seed=self.rng)
         # ... and the regime chains run on: a rest or a move outlives the model update
         carry_regime_state(previous, self.follower.noise_source)
-        self._place_share(getattr(self, '_share_from', None))
         self._mark_in_herd()
         if self.pace is not None and len(self.pace.factors) == len(self.follower.robots):
             self.follower.noise_gain = self.pace.factors.copy()
@@ -335,29 +329,6 @@ class HerdModelPolicy:
             node.get_logger().info(f'pace match: noise factors {f.min():.2f}-{f.max():.2f} '
                                    f'(each robot\'s speed against its animal\'s)',
                                    throttle_duration_sec=30.0)
-
-    def _place_share(self, previous):
-        """The share of each robot's place pull it feels everywhere ((P3) of
-        herd_ros/model/herd_place.py): worked out from free runs of the new law every
-        ``PLACE_SHARE_EVERY`` model updates (a few tenths of a second for twenty robots),
-        carried from the last one in between."""
-        follower = self.follower
-        if (follower.model.meta or {}).get('herd_place') is None:
-            return
-        due = (previous is None or len(previous[1]) != len(follower.robots)
-               or self.updates - previous[0] >= PLACE_SHARE_EVERY)
-        if not due:
-            follower.place_share = previous[1]
-            return
-        positions = getattr(self.node, 'positions', None)
-        share = follower.find_place_share(
-            positions if positions is not None and len(positions) == len(follower.robots)
-            else None)
-        self._share_from = (self.updates, share)
-        self.node.get_logger().info(
-            f'place pull everywhere at {share.min():.2f}-{share.max():.2f} of its gain '
-            f'(each law\'s free run against its animal\'s place in the herd)',
-            throttle_duration_sec=30.0)
 
     def _mark_in_herd(self):
         """Tell the follower which robots' animals have a pose at the latest herd tick (the
