@@ -39,9 +39,8 @@ import numpy as np
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import AgentLaw, HerdModel, pairwise_geometry
 from herd_ros.model.noise_regimes import noise_for, subset_regimes
-from herd_ros.model.herd_place import place_drift, subset_place
-from herd_ros.model.rbf_field import agent_fields
-from herd_ros.model.space_use_field import home_drift, subset_home
+from herd_ros.model.herd_place import subset_place
+from herd_ros.model.space_use_field import subset_home
 
 #: Herd-clock steps the hold steps the law through at once; a longer jump of the clock (sim
 #: time starting, a replay resumed) restarts the law from what the robots do.
@@ -146,12 +145,9 @@ class HerdFollower:
         whose animal is in the herd (:attr:`in_herd`: the offsets its animal's place was
         learned from leave absent animals out, so a robot whose animal's collar is silent
         or has not started must not move the others' centroid)."""
-        m = self.model
         p = np.where(active[:, None], positions, np.nan)
         counted = active & (self.in_herd if len(self.in_herd) == len(p) else True)
-        g = (agent_fields(p, m._centers, m._sigma, m._coef) + home_drift(m.meta, p)
-             + place_drift(m.meta, p, counted))
-        return np.nan_to_num(g)
+        return np.nan_to_num(self.model.environment(p, counted=counted))
 
     def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Σ_{j active, j≠k} f_kj(p_k, p_j) + g_k(p_k) for every robot: (R, 2) -> (R, 2).

@@ -171,12 +171,15 @@ class HerdModel(VelocityMemory):
             terms = mag[..., None] * unit
         return np.where(np.isfinite(terms), terms, 0.0).sum(-2)
 
-    def environment(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
+    def environment(self, positions: np.ndarray, compiled: bool | None = None,
+                    counted: np.ndarray | None = None) -> np.ndarray:
         """g_i(p_i) for every agent: positions (..., N, 2) -> (..., N, 2); the RBF field plus,
         in a long-run model, the space-use home pull (S2) of :mod:`space_use_field` and the
-        pull to the agent's place in the herd (P1) of :mod:`herd_place`."""
+        pull to the agent's place in the herd (P1) of :mod:`herd_place`, its others'
+        centroid over the ``counted`` agents (N,) when given."""
         return (agent_fields(positions, self._centers, self._sigma, self._coef, compiled)
-                + home_drift(self.meta, positions) + place_drift(self.meta, positions))
+                + home_drift(self.meta, positions)
+                + place_drift(self.meta, positions, counted))
 
     def drift(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
         """Σ_j f_ij(p) + g_i(p_i) for every agent (..., N, 2)."""

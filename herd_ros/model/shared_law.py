@@ -318,11 +318,14 @@ class SharedLawModel(VelocityMemory):
             out[t0:t0 + chunk] = np.einsum('tnck,nc->tnk', cols, coef)
         return out if p.ndim == 3 else out[0]
 
-    def environment(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
+    def environment(self, positions: np.ndarray, compiled: bool | None = None,
+                    counted: np.ndarray | None = None) -> np.ndarray:
         """g_i(p_i) for positions (..., N, 2): the RBF field (plus the space-use home pull and
-        the pull to the agent's place in the herd)."""
+        the pull to the agent's place in the herd, its others' centroid over the ``counted``
+        agents (N,) when given)."""
         return (agent_fields(positions, self._centers, self._sigma, self._coef, compiled)
-                + home_drift(self.meta, positions) + place_drift(self.meta, positions))
+                + home_drift(self.meta, positions)
+                + place_drift(self.meta, positions, counted))
 
     def drift(self, positions, compiled: bool | None = None):
         """Σ_j F(d_ij) e_ij (+ own profiles) + g_i(p_i) for every agent: (N, 2) -> (N, 2)."""
