@@ -35,6 +35,17 @@ def test_ingest_gps_csv(gps_csv, tmp_path, capsys, smoother):
     assert rc == 0
     text = capsys.readouterr().out
     assert 'datum: lat 27.015300000 lon -108.793700000' in text and 'cow_2' in text
+    # the tracking measure on the file itself: every fix after a collar's first (299 of
+    # each collar's 300) scored against the last raw fix; consecutive fixes with 2 m noise per
+    # axis are 2√2 m apart per axis, a Rayleigh median of 2√2·√(2 ln 2) = 3.33 m
+    lines = text.splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith('every valid fix'))
+    track = float(lines[first].split()[5])
+    raw = float(lines[first + 1].split()[7])
+    # a new track starts on its second consistent fix: the second fix of each collar has
+    # no track pose before it
+    assert '(n 894 of 897)' in lines[first + 1]
+    assert 3.0 < raw < 3.7 and track < raw
     # per collar, what was kept and why anything was not: every input fix is counted once
     table = pd.read_csv(out.with_suffix('.collars.csv'))
     fixes = pd.read_csv(gps_csv)

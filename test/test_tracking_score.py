@@ -3,7 +3,9 @@ import numpy as np
 import pandas as pd
 
 from herd_ros.ingest.herd_clock import StateTimeline
-from herd_ros.ingest.tracking_score import (collar_track_distances, next_fix_distances,
+from herd_ros.ingest.tracking_score import (collar_track_distances,
+                                            format_ingest_tracking_score,
+                                            ingest_tracking_score, next_fix_distances,
                                             paired, summarise)
 
 
@@ -47,3 +49,28 @@ def test_the_paired_comparison_counts_who_is_closer_by_hand():
     assert lo < 2 / 3 < hi and lo > 0.0 and hi < 1.0
     # median of (−1, 1, −0.5, 0.0005)
     assert abs(p['median_difference'] - (-0.5 + 0.0005) / 2) < 1e-12
+
+
+def test_ingest_scores_every_fix_and_the_accepted_ones_by_hand():
+    # a collar moving east at 1 m/s, its states after the fixes at 0, 10 and 20 s; the fix
+    # at 30 s, 20 m ahead of the animal, was rejected (no state at 30 s)
+    x = np.array([[0.0, 0.0, 1.0, 0.0], [10.0, 0.0, 1.0, 0.0], [20.0, 0.0, 1.0, 0.0]])
+    tl = StateTimeline(np.array([0.0, 10.0, 20.0]), x, np.zeros((3, 4, 4)), 1e-9, 1e6)
+    raw = {'a': (np.array([0.0, 10.0, 20.0, 30.0]),
+                 np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [50.0, 0.0]]))}
+    score = ingest_tracking_score(raw, {'a': tl})
+    # every fix after the first: the track says 10, 20, 30 m; the last raw fix 0, 10, 20
+    every = score['every']
+    assert every['track']['n'] == 3 and every['last_raw_fix']['n'] == 3
+    assert abs(every['track']['median'] - 0.0) < 1e-4
+    assert abs(every['track']['rms'] - np.sqrt(20.0 ** 2 / 3)) < 1e-4
+    assert abs(every['last_raw_fix']['median'] - 10.0) < 1e-9
+    assert abs(every['last_raw_fix']['rms'] - np.sqrt((100 + 100 + 900) / 3)) < 1e-9
+    # the accepted fixes: 10 and 20 s
+    acc = score['accepted']
+    assert acc['track']['n'] == 2 and acc['track']['p99'] < 1e-4
+    assert abs(acc['last_raw_fix']['median'] - 10.0) < 1e-9
+    text = format_ingest_tracking_score(score)
+    assert every['eligible'] == 3 and acc['eligible'] == 2
+    assert 'every valid fix' in text and '(n 3 of 3)' in text and '(n 2 of 2)' in text
+    assert 'last raw fix' in text

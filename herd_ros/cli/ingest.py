@@ -153,6 +153,10 @@ def run(args) -> int:
         print(format_counters(counters, spans))
         if fits is not None:
             print(format_motion_fits(fits))
+    from herd_ros.ingest.tracking_score import (format_ingest_tracking_score,
+                                                ingest_tracking_score)
+    print(format_ingest_tracking_score(ingest_tracking_score(traj.meta['raw_fixes'],
+                                                             traj.meta['timelines'])))
     print(f'wrote {args.output} (smoother: {args.smoother}) and, per collar, what was kept '
           f'and why anything was not: {table_path}')
     return 0
