@@ -302,6 +302,12 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
         facts['pace_factors'] = {r: float(f) for r, f in zip(robots, pace.factors)}
         facts['pace_factor_history'] = [{'time': float(t), 'factors': [float(v) for v in f]}
                                         for t, f in pace.history]
+    place = getattr(getattr(controller, 'policy', None), 'place_match', None)
+    if place is not None:
+        # each robot's share of its place pull inside its range (place_match)
+        facts['place_shares'] = {r: float(v) for r, v in zip(robots, place.shares)}
+        facts['place_share_history'] = [{'time': float(t), 'shares': [float(v) for v in f]}
+                                        for t, f in place.history]
     profile_size = int(params['estimator']['ros__parameters'].get('profile_size', 6))
     return write_demo_report(out, cows, robots_traj, agents, param_times, thetas, fence, facts,
                              law=setup.law, profile_size=profile_size,

@@ -124,6 +124,9 @@ class HerdFollower:
         noise: whether w is drawn.
         noise_gain (R,): a factor on each robot's noise std on top of the model's (the
             live pace match, :mod:`herd_ros.control.pace_match`); 1 by default.
+        place_share (R,): each robot's share of its place pull's linear part inside its
+            range (the live place match, :mod:`herd_ros.control.place_match`); 0 by
+            default (the pull at the range's edge only).
     """
 
     def __init__(self, model: HerdModel, assignment: list[str], robots: list[str] | None = None,
@@ -137,6 +140,7 @@ class HerdFollower:
         self.noise = bool(noise)
         self.noise_source = noise_for(self.model, seed)
         self.noise_gain = np.ones(len(self.robots))
+        self.place_share = np.zeros(len(self.robots))
         self.in_herd = np.ones(len(self.robots), dtype=bool)
 
     def environment(self, positions: np.ndarray, active: np.ndarray) -> np.ndarray:
@@ -144,10 +148,13 @@ class HerdFollower:
         position, and the pull to its place among the other robots that are active and
         whose animal is in the herd (:attr:`in_herd`: the offsets its animal's place was
         learned from leave absent animals out, so a robot whose animal's collar is silent
-        or has not started must not move the others' centroid)."""
+        or has not started must not move the others' centroid), at its
+        :attr:`place_share` inside its range."""
         p = np.where(active[:, None], positions, np.nan)
         counted = active & (self.in_herd if len(self.in_herd) == len(p) else True)
-        return np.nan_to_num(self.model.environment(p, counted=counted))
+        share = self.place_share if np.shape(self.place_share) == (len(p),) and \
+            self.place_share.any() else None
+        return np.nan_to_num(self.model.environment(p, counted=counted, share=share))
 
     def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Σ_{j active, j≠k} f_kj(p_k, p_j) + g_k(p_k) for every robot: (R, 2) -> (R, 2).
@@ -354,6 +361,7 @@ class SharedLawFollower(HerdFollower):
         self.noise = bool(noise)
         self.noise_source = noise_for(self.model, seed)
         self.noise_gain = np.ones(len(self.robots))
+        self.place_share = np.zeros(len(self.robots))
         self.in_herd = np.ones(len(self.robots), dtype=bool)
 
     def drift(self, positions: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:

@@ -172,14 +172,17 @@ class HerdModel(VelocityMemory):
         return np.where(np.isfinite(terms), terms, 0.0).sum(-2)
 
     def environment(self, positions: np.ndarray, compiled: bool | None = None,
-                    counted: np.ndarray | None = None) -> np.ndarray:
+                    counted: np.ndarray | None = None,
+                    share: np.ndarray | None = None) -> np.ndarray:
         """g_i(p_i) for every agent: positions (..., N, 2) -> (..., N, 2); the RBF field plus,
         in a long-run model, the space-use home pull (S2) of :mod:`space_use_field` and the
         pull to the agent's place in the herd (P1) of :mod:`herd_place`, its others'
-        centroid over the ``counted`` agents (N,) when given."""
+        centroid over the ``counted`` agents (N,) when given and, with ``share`` (N,),
+        that share of the linear pull inside each range too
+        (:func:`~herd_ros.model.space_use_field.edge_pull`)."""
         return (agent_fields(positions, self._centers, self._sigma, self._coef, compiled)
                 + home_drift(self.meta, positions)
-                + place_drift(self.meta, positions, counted))
+                + place_drift(self.meta, positions, counted, share))
 
     def drift(self, positions: np.ndarray, compiled: bool | None = None) -> np.ndarray:
         """Σ_j f_ij(p) + g_i(p_i) for every agent (..., N, 2)."""

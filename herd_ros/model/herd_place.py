@@ -101,16 +101,19 @@ def place_coupling(n_agents: int) -> float:
 
 
 def place_drift(meta: dict | None, positions: np.ndarray,
-                counted: np.ndarray | None = None) -> np.ndarray | float:
+                counted: np.ndarray | None = None,
+                share: np.ndarray | None = None) -> np.ndarray | float:
     """(P1) for every agent from ``meta['herd_place']``, positions (..., N, 2); 0.0
     without it (and for an agent with no other present). With a fourth entry, the cap c_i
     (N,) of a fitted law's places, each pull is shortened to at most c_i (P2). ``counted``
-    (N,): the agents the others' centroid is taken over (default: every one present)."""
+    (N,): the agents the others' centroid is taken over (default: every one present).
+    ``share`` (N,): each agent's share of the linear pull inside its range too (a robot's,
+    matched live to its animal's place spread: :mod:`herd_ros.control.place_match`)."""
     place = (meta or {}).get('herd_place')
     if place is None:
         return 0.0
     mean, gain, cov = place[:3]
-    pull = edge_pull(place_offsets(positions, counted) - mean, gain, cov)
+    pull = edge_pull(place_offsets(positions, counted) - mean, gain, cov, share)
     if len(place) > 3:
         size = np.linalg.norm(pull, axis=-1, keepdims=True)
         pull = pull * np.minimum(1.0, np.asarray(place[3])[:, None]

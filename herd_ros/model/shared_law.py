@@ -319,13 +319,15 @@ class SharedLawModel(VelocityMemory):
         return out if p.ndim == 3 else out[0]
 
     def environment(self, positions: np.ndarray, compiled: bool | None = None,
-                    counted: np.ndarray | None = None) -> np.ndarray:
+                    counted: np.ndarray | None = None,
+                    share: np.ndarray | None = None) -> np.ndarray:
         """g_i(p_i) for positions (..., N, 2): the RBF field (plus the space-use home pull and
         the pull to the agent's place in the herd, its others' centroid over the ``counted``
-        agents (N,) when given)."""
+        agents (N,) when given, and with ``share`` (N,) that share of its linear pull inside
+        each range too)."""
         return (agent_fields(positions, self._centers, self._sigma, self._coef, compiled)
                 + home_drift(self.meta, positions)
-                + place_drift(self.meta, positions, counted))
+                + place_drift(self.meta, positions, counted, share))
 
     def drift(self, positions, compiled: bool | None = None):
         """Σ_j F(d_ij) e_ij (+ own profiles) + g_i(p_i) for every agent: (N, 2) -> (N, 2)."""

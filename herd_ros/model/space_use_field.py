@@ -218,13 +218,15 @@ def home_drift(meta: dict | None, positions: np.ndarray) -> np.ndarray | float:
     return edge_pull(d, home[1], home[2])
 
 
-def edge_pull(d: np.ndarray, gain: np.ndarray, cov: np.ndarray) -> np.ndarray:
+def edge_pull(d: np.ndarray, gain: np.ndarray, cov: np.ndarray,
+              share: np.ndarray | None = None) -> np.ndarray:
     """−K_i d_i (1 − r₀/r_i)₊ for displacements d (..., N, 2) from the centres of ranges of
     covariance Σ_i (N, 2, 2), r_i = √(d_iᵀ Σ_i⁻¹ d_i) and r₀ = ``HOME_RANGE_RADIUS``: zero
     within the range's edge, continuous across it, the linear pull of gain K_i (N, 2, 2) on
     the excess beyond; NaN displacements give 0. A range that has not spread yet (Σ_i = 0,
     whose gain is 0) puts every displacement beyond its edge (r_i = ∞) without overflow
-    warnings."""
+    warnings. With ``share`` s_i (N,): −K_i d_i max((1 − r₀/r_i)₊, s_i), the linear pull at
+    s_i of its gain inside the range too (:mod:`herd_ros.control.place_match`, (M4))."""
     inv = range_inverse(cov)
     d = np.nan_to_num(np.asarray(d, dtype=float))
     k = np.asarray(gain, dtype=float)
@@ -234,6 +236,8 @@ def edge_pull(d: np.ndarray, gain: np.ndarray, cov: np.ndarray) -> np.ndarray:
                                + inv[:, 1, 1] * y * y, 1e-300))
     r = np.where(np.isnan(r), np.inf, r)
     beyond = np.clip(1.0 - HOME_RANGE_RADIUS / r, 0.0, None)
+    if share is not None:
+        beyond = np.maximum(beyond, np.asarray(share, dtype=float))
     return np.stack([-(k[:, 0, 0] * x + k[:, 0, 1] * y) * beyond,
                      -(k[:, 1, 0] * x + k[:, 1, 1] * y) * beyond], axis=-1)
 

@@ -3,8 +3,10 @@ law (:mod:`herd_ros.control.herd_follower`), the model from a model file's ``mod
 parameters or live from the estimator's ``/herd/model/params`` (with its noise Q_i and,
 when fitted, its stop-and-go noise regimes, ``/herd/model/noise_regimes``; with
 ``match_pace`` each robot's noise scaled to its animal's speed on ``/herd/poses``,
-:mod:`herd_ros.control.pace_match`). The shell of the mode: parameters, subscriptions and
-the checks of each model adopted (:mod:`herd_ros.control.damping`)."""
+:mod:`herd_ros.control.pace_match`, and with ``match_place`` its place pull to how its
+animal keeps its place, :mod:`herd_ros.control.place_match`). The shell of the mode:
+parameters, subscriptions and the checks of each model adopted
+(:mod:`herd_ros.control.damping`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -17,6 +19,7 @@ from herd_ros.control.damping import damping_check
 from herd_ros.control.fleet_observation import FleetObservation
 from herd_ros.control.herd_follower import HerdClockHold, HerdFollower, follower_for
 from herd_ros.control.pace_match import PaceMatch
+from herd_ros.control.place_match import PlaceMatch, stable_shares
 from herd_ros.errors import HerdInputError
 from herd_ros.estimation.online_regimes import unpack_regimes
 from herd_ros.herd_dynamics import HerdDynamics
@@ -54,6 +57,9 @@ class HerdModelPolicy:
         # the estimator's structure says which pose is which animal)
         self.match_pace = bool(p['match_pace']) and self.noise and self.source == 'topic'
         self.pace: PaceMatch | None = None
+        # each robot's place pull matched to its animal's place spread (live places)
+        self.match_place = bool(p['match_place']) and self.source == 'topic'
+        self.place_match: PlaceMatch | None = None
         self._rows_for = self._robot_rows = None   # the structure the robots' rows are for
         # the model steps each animal has been in the herd: a robot follows its animal's
         # live law once it has min_updates of them (animal_steps)
@@ -163,6 +169,9 @@ class HerdModelPolicy:
         self._mark_in_herd()
         if self.pace is not None and len(self.pace.factors) == len(self.follower.robots):
             self.follower.noise_gain = self.pace.factors.copy()
+        if self.place_match is not None and \
+                len(self.place_match.shares) == len(self.follower.robots):
+            self.follower.place_share = self.place_match.shares.copy()
         self.updates += 1
         regimes = (model.meta or {}).get('noise_regimes')
         noise = ('' if not self.noise else
@@ -317,7 +326,10 @@ class HerdModelPolicy:
         self.present = np.isfinite(animals).all(axis=-1)
         self._mark_in_herd()
         follower, index = self.follower, self.robot_rows()
-        if not self.match_pace or follower is None or index is None:
+        if follower is None or index is None:
+            return
+        self._match_place(t, animals, follower, index)
+        if not self.match_pace:
             return
         if self.pace is None or self.pace.lag != follower.dt or self.pace.n != len(index):
             self.pace = PaceMatch(len(index), follower.dt)
@@ -329,6 +341,30 @@ class HerdModelPolicy:
             node.get_logger().info(f'pace match: noise factors {f.min():.2f}-{f.max():.2f} '
                                    f'(each robot\'s speed against its animal\'s)',
                                    throttle_duration_sec=30.0)
+
+    def _match_place(self, t: float, animals: np.ndarray, follower, index):
+        """Each robot's offset from the other robots' centroid against its animal's from
+        the other animals' on this herd tick, for the place match
+        (:class:`~herd_ros.control.place_match.PlaceMatch`)."""
+        place = (follower.model.meta or {}).get('herd_place')
+        if not self.match_place or place is None or len(index) != len(follower.robots):
+            return
+        from herd_ros.model.herd_place import place_offsets
+        if self.place_match is None or self.place_match.n != len(index):
+            self.place_match = PlaceMatch(len(index))
+        robots = np.asarray(self.node.positions, dtype=float).reshape(-1, 2)
+        counted = np.isfinite(robots).all(axis=-1) & follower.in_herd
+        robot_d = np.where(counted[:, None], place_offsets(robots, counted), np.nan)
+        animal_d = place_offsets(animals)[index]
+        limit = stable_shares(follower.damping, place[1], follower.dt, len(index))
+        if self.place_match.observe(t, animal_d, robot_d, place[0], place[2], limit):
+            follower.place_share = self.place_match.shares.copy()
+            owned = np.asarray(self.node.owned, dtype=bool)
+            s = self.place_match.shares[owned] if owned.any() else self.place_match.shares
+            self.node.get_logger().info(
+                f'place match: shares {s.min():.2f}-{s.max():.2f} of the place pull inside '
+                f'the range (each robot\'s place spread against its animal\'s)',
+                throttle_duration_sec=30.0)
 
     def _mark_in_herd(self):
         """Tell the follower which robots' animals have a pose at the latest herd tick (the

@@ -196,6 +196,16 @@ HERD_MODEL = {
              'ticks (the law\'s\n'
              "noise, estimated from the track, carries the collar's error; "
              'herd_ros/control/pace_match.py).')),
+    'match_place': Param(
+        True,
+        "topic: each robot's place pull made to hold it as its animal keeps its place",
+        doc=('\n'
+             'With model_source topic: the share of each robot\'s place pull it also feels '
+             'inside\n'
+             "its range, corrected so that its offset from the other robots' centroid "
+             'spreads as\n'
+             "its animal's does on /herd/poses (0: the pull at the range's edge only; "
+             'herd_ros/control/place_match.py).')),
     'model_source': Param(
         'file',
         'model.* parameters of a model file, or live from /herd/model/params',
