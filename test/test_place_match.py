@@ -110,3 +110,13 @@ def test_a_share_never_makes_the_place_loop_ring():
     for k in range(50):
         m.observe(k, [[1.0, 0.0]], [[5.0, 0.0]], [[0.0, 0.0]], [np.eye(2)], top[:1])
     assert m.shares[0] == top[0]
+
+
+def test_a_lower_bound_from_a_new_law_takes_effect_at_once():
+    m = PlaceMatch(2, memory=1e9, min_samples=1, update_every=100)
+    m.shares = np.array([2.0, 0.5])
+    # between corrections: a share above a new law's bound comes down to it at once,
+    # one below it stays
+    assert m.observe(0.0, np.zeros((2, 2)), np.zeros((2, 2)), np.zeros((2, 2)),
+                     np.tile(np.eye(2), (2, 1, 1)), np.array([1.0, 1.0]))
+    np.testing.assert_allclose(m.shares, [1.0, 0.5])

@@ -129,19 +129,17 @@ class PlaceMatch:
         self._animal[ok] = self.keep * self._animal[ok] + ra[ok]
         self._robot[ok] = self.keep * self._robot[ok] + rk[ok]
         self.samples[ok] += 1
+        top = self.bounds[1] if limit is None else np.clip(limit, *self.bounds)
+        new = np.minimum(self.shares, top)      # a new law may bound a share lower
         self._since += 1
-        if self._since < self.update_every:
-            return False
-        self._since = 0
-        ready = (self.samples >= self.min_samples) & (self._animal > 0) & (self._robot > 0)
-        if not ready.any():
-            return False
-        with np.errstate(divide='ignore', invalid='ignore'):
-            miss = 0.5 * np.log(self._robot / self._animal)     # > 0: the robot strays
-        move = ready & np.isfinite(miss) & (np.abs(miss) > self.deadband)
-        top = self.bounds[1] if limit is None else np.minimum(self.bounds[1], limit)
-        new = np.clip(self.shares + self.rate * np.where(move, miss, 0.0), self.bounds[0],
-                      top)
+        if self._since >= self.update_every:
+            self._since = 0
+            ready = (self.samples >= self.min_samples) & (self._animal > 0) & \
+                (self._robot > 0)
+            with np.errstate(divide='ignore', invalid='ignore'):
+                miss = 0.5 * np.log(self._robot / self._animal)     # > 0: the robot strays
+            move = ready & np.isfinite(miss) & (np.abs(miss) > self.deadband)
+            new = np.clip(new + self.rate * np.where(move, miss, 0.0), self.bounds[0], top)
         changed = bool((new != self.shares).any())
         self.shares = new
         if changed:

@@ -23,6 +23,7 @@ from herd_ros.control.place_match import PlaceMatch, stable_shares
 from herd_ros.errors import HerdInputError
 from herd_ros.estimation.online_regimes import unpack_regimes
 from herd_ros.herd_dynamics import HerdDynamics
+from herd_ros.model.herd_place import place_offsets
 from herd_ros.model.model_structure import ModelStructure
 from herd_ros.model.noise_regimes import carry_regime_state
 from herd_ros.nodes.ros_common import ParameterError, declare_parameters
@@ -349,7 +350,6 @@ class HerdModelPolicy:
         place = (follower.model.meta or {}).get('herd_place')
         if not self.match_place or place is None or len(index) != len(follower.robots):
             return
-        from herd_ros.model.herd_place import place_offsets
         if self.place_match is None or self.place_match.n != len(index):
             self.place_match = PlaceMatch(len(index))
         robots = np.asarray(self.node.positions, dtype=float).reshape(-1, 2)
