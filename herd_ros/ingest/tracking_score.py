@@ -88,19 +88,24 @@ def _distances(fixes: pd.DataFrame, agents, track_before, targets=None
         g = fixes.iloc[rows]
         order = np.argsort(g['time'].to_numpy(float), kind='stable')
         t = g['time'].to_numpy(float)[order]
-        z = g[['x', 'y']].to_numpy(float)[order]
-        tg = targets[rows][order]
-        # the last raw fix strictly before each fix (a duplicate stamp is not "before")
-        k = np.searchsorted(t, t, side='left') - 1
-        raw = np.full_like(z, np.nan)
-        raw[k >= 0] = z[k[k >= 0]]
-        track = track_before(i, a, t)
-        ok = tg & np.isfinite(raw).all(axis=1) & np.isfinite(track).all(axis=1)
-        out_t.append(np.hypot(*(track[ok] - z[ok]).T))
-        out_r.append(np.hypot(*(raw[ok] - z[ok]).T))
+        d_t, d_r = _agent_distances(t, g[['x', 'y']].to_numpy(float)[order],
+                                    track_before(i, a, t), targets[rows][order])
+        out_t.append(d_t)
+        out_r.append(d_r)
     if not out_t:
         return np.zeros(0), np.zeros(0)
     return np.concatenate(out_t), np.concatenate(out_r)
+
+
+def _agent_distances(t, z, track, targets) -> tuple[np.ndarray, np.ndarray]:
+    """(d_track, d_raw) of one agent's fixes (t (K,) in stamp order, z (K, 2)) given its
+    track just before each (K, 2) and which fixes are scored (K,)."""
+    # the last raw fix strictly before each fix (a duplicate stamp is not "before")
+    k = np.searchsorted(t, t, side='left') - 1
+    raw = np.full_like(z, np.nan)
+    raw[k >= 0] = z[k[k >= 0]]
+    ok = targets & np.isfinite(raw).all(axis=1) & np.isfinite(track).all(axis=1)
+    return np.hypot(*(track[ok] - z[ok]).T), np.hypot(*(raw[ok] - z[ok]).T)
 
 
 def next_fix_distances(fixes: pd.DataFrame, track_times, track_positions, agents,
@@ -164,23 +169,26 @@ def ingest_tracking_score(raw_fixes: dict, timelines: dict) -> dict:
         fixes it judged wrong and so favours the track. The truth lies between; the
         tracking benchmark scores the fixes known not to be injected outliers.
     """
-    agents = [a for a in raw_fixes if a in timelines and len(raw_fixes[a][0])]
-    rows = [pd.DataFrame({'time': raw_fixes[a][0], 'agent': str(a),
-                          'x': raw_fixes[a][1][:, 0], 'y': raw_fixes[a][1][:, 1]})
-            for a in agents]
-    fixes = (pd.concat(rows, ignore_index=True) if rows
-             else pd.DataFrame({'time': [], 'agent': [], 'x': [], 'y': []}))
-    took = (np.concatenate([np.isin(raw_fixes[a][0], np.asarray(timelines[a].t, float))
-                            for a in agents]) if agents else np.zeros(0, bool))
-    # fixes with a raw fix before them (a duplicated stamp is not "before" its twin)
-    eligible = (np.concatenate([raw_fixes[a][0] > raw_fixes[a][0][0] for a in agents])
-                if agents else np.zeros(0, bool))
+    parts = {'every': ([], [], 0), 'accepted': ([], [], 0)}
+    for a, (t, z) in raw_fixes.items():
+        if a not in timelines or not len(t):
+            continue
+        t = np.asarray(t, dtype=float)
+        track = collar_track_before(timelines[a], t)
+        took = np.isin(t, np.asarray(timelines[a].t, dtype=float))
+        eligible = t > t[0]             # a fix before it (a duplicated stamp is not "before")
+        for name, mask in (('every', np.ones(len(t), bool)), ('accepted', took)):
+            d_t, d_r = _agent_distances(t, np.asarray(z, dtype=float), track, mask)
+            dt_list, dr_list, n = parts[name]
+            dt_list.append(d_t)
+            dr_list.append(d_r)
+            parts[name] = (dt_list, dr_list, n + int(np.sum(eligible & mask)))
     out = {}
-    for name, mask in (('every', None), ('accepted', took)):
-        d_t, d_r = collar_track_distances(fixes, {a: timelines[a] for a in agents}, mask)
+    for name, (dt_list, dr_list, n) in parts.items():
+        d_t = np.concatenate(dt_list) if dt_list else np.zeros(0)
+        d_r = np.concatenate(dr_list) if dr_list else np.zeros(0)
         out[name] = {'track': summarise(d_t), 'last_raw_fix': summarise(d_r),
-                     'paired': paired(d_t, d_r),
-                     'eligible': int(np.sum(eligible if mask is None else eligible & mask))}
+                     'paired': paired(d_t, d_r), 'eligible': n}
     return out
 
 
