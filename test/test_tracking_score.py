@@ -74,3 +74,7 @@ def test_ingest_scores_every_fix_and_the_accepted_ones_by_hand():
     assert every['eligible'] == 3 and acc['eligible'] == 2
     assert 'every valid fix' in text and '(n 3 of 3)' in text and '(n 2 of 2)' in text
     assert 'last raw fix' in text
+    # above max_scored fixes, every k-th fix of each collar (k = 2 here: 0 and 20 s)
+    thin = ingest_tracking_score(raw, {'a': tl}, max_scored=2)['every']
+    assert thin['stride'] == 2 and thin['eligible'] == 1 and thin['track']['n'] == 1
+    assert abs(thin['last_raw_fix']['median'] - 10.0) < 1e-9
