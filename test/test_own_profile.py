@@ -120,9 +120,11 @@ def test_a_dog_with_its_own_profile_is_recovered_and_predicts_better(driven):
         # the truth within 2 of them; on four draws of this herd (simulation seeds 2-5,
         # numpy 2.4) the flock mean lies 0.6 / 2.4 / 3.0, -0.1 / -0.4 / -0.8, 0.8 / 1.7 /
         # -0.6 and 1.0 / 3.0 / 2.9 standard errors from the truth at the three quartiles,
-        # and as far from the truth's best fit in the fitted basis: the step-clustered
-        # sandwich understates the spread between draws (an earlier draw was within 2).
-        # What holds on every draw is the 5 % above; here the error is only reported.
+        # and as far from the truth's best fit in the fitted basis; a Newey-West standard
+        # error (residuals correlated across steps) is no larger. The error between draws
+        # is larger than the standard error says, for a reason not found yet (an earlier
+        # draw was within 2). What holds on every draw is the 5 % above; here the error is
+        # only reported.
         psi = np.array([model.own_profile.force(np.eye(Bo)[b], d) for b in range(Bo)])
         var = sum(psi @ agent_fits[a].theta_cov[1 + B:1 + B + Bo, 1 + B:1 + B + Bo] @ psi
                   for a in agents[:15])
