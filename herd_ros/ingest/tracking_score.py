@@ -97,13 +97,17 @@ def _distances(fixes: pd.DataFrame, agents, track_before, targets=None
     return np.concatenate(out_t), np.concatenate(out_r)
 
 
+def _last_raw_before(t, z, stamps) -> np.ndarray:
+    """The last of an agent's fixes (t (K,) in stamp order, z (K, 2)) strictly before each
+    stamp (a duplicated stamp is not "before" its twin); NaN where there is none."""
+    k = np.searchsorted(t, stamps, side='left') - 1
+    return np.where((k >= 0)[:, None], z[np.maximum(k, 0)], np.nan)
+
+
 def _agent_distances(t, z, track, targets) -> tuple[np.ndarray, np.ndarray]:
     """(d_track, d_raw) of one agent's fixes (t (K,) in stamp order, z (K, 2)) given its
     track just before each (K, 2) and which fixes are scored (K,)."""
-    # the last raw fix strictly before each fix (a duplicate stamp is not "before")
-    k = np.searchsorted(t, t, side='left') - 1
-    raw = np.full_like(z, np.nan)
-    raw[k >= 0] = z[k[k >= 0]]
+    raw = _last_raw_before(t, z, t)
     ok = targets & np.isfinite(raw).all(axis=1) & np.isfinite(track).all(axis=1)
     return np.hypot(*(track[ok] - z[ok]).T), np.hypot(*(raw[ok] - z[ok]).T)
 
@@ -186,9 +190,7 @@ def ingest_tracking_score(raw_fixes: dict, timelines: dict,
         t = np.asarray(raw_fixes[a][0], dtype=float)
         z = np.asarray(raw_fixes[a][1], dtype=float).reshape(-1, 2)
         pick = np.arange(0, len(t), stride)
-        # the last raw fix strictly before each (a duplicated stamp is not "before")
-        k = np.searchsorted(t, t[pick], side='left') - 1
-        raws.append(np.where((k >= 0)[:, None], z[np.maximum(k, 0)], np.nan))
+        raws.append(_last_raw_before(t, z, t[pick]))
         zs.append(z[pick])
         tracks.append(collar_track_before(timelines[a], t[pick]))
         states = np.asarray(timelines[a].t, dtype=float)
@@ -201,7 +203,7 @@ def ingest_tracking_score(raw_fixes: dict, timelines: dict,
         z = raw = track = np.zeros((0, 2))
         took = np.zeros(0, bool)
     has_raw = np.isfinite(raw).all(axis=1)
-    ok = has_raw & np.isfinite(raw).all(axis=1) & np.isfinite(track).all(axis=1)
+    ok = has_raw & np.isfinite(track).all(axis=1)
     d_track = np.hypot(*(track - z).T)
     d_raw = np.hypot(*(raw - z).T)
     out = {}
