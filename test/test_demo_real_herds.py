@@ -113,10 +113,17 @@ def test_demo_chooses_everything_from_the_bag_and_writes_the_contract(demo_run):
     for f in ('herd_poses.csv', 'herd_predictions.csv', 'fig_trajectories.png',
               'fig_statistics.png', 'fig_params.png'):
         assert (out / f).exists(), f
-    # issue 30: each robot starts where its animal is, and is judged against it
+    # issue 30: each robot starts where its animal is (it escorts its animal until its law
+    # takes over, herd_ros/control/escort.py), and is judged against it from then on
     verdict = summary['verdict']
     assert set(verdict['robots']) == set(summary['robots'])
-    assert all(e['start_offset_m'] < 1.0 for e in verdict['robots'].values()), verdict
+    assert all(summary['law_since'][r] is not None for r in verdict['robots'])
+    offsets = [e['start_offset_m'] for e in verdict['robots'].values()]
+    # the escort trails its animal by about what the animal walks in a herd tick (the
+    # baboons: 0.25 m/s on a 5 s clock, 1.3 m; one run: median 0.9 m, at most 5.0 m). A
+    # robot that held still at its animal's first pose through the 8-9 minutes of the wait
+    # would have started 0.1-15.6 m off its animal (median 2.1 m) in that run
+    assert np.median(offsets) < 1.5 and max(offsets) < 10.0, verdict
     assert 'pass' in stdout or 'FAIL' in stdout
 
 

@@ -25,6 +25,21 @@ def test_start_offset_and_pass_by_hand():
                                           {'mean_distance': 0.31})['herd_pass']
 
 
+def test_the_start_offset_is_taken_when_the_robot_starts():
+    # a robot scored from t = 3 (its law took over then) is measured against where its
+    # animal was at t = 3, not at the animal's first herd pose
+    t = np.arange(6.0)
+    cows = HerdTrajectory(t, ['c1'], np.zeros((6, 1, 2)))
+    cows.positions[:, 0, 0] = 2.0 * t                        # walks east, 2 m per tick
+    robots = HerdTrajectory(t[3:], ['r1'], np.zeros((3, 1, 2)))
+    robots.positions[:, 0] = (6.0, 1.5)                      # the animal is at (6, 0) at t = 3
+    v = verdict(cows, robots, ['c1'], {}, {})
+    assert v['robots']['r1']['start_offset_m'] == 1.5
+    # the robot's first sample between two herd ticks: the animal's latest pose before it
+    late = HerdTrajectory(np.array([3.5]), ['r1'], np.array([[[6.0, 0.0]]]))
+    assert verdict(cows, late, ['c1'], {}, {})['robots']['r1']['start_offset_m'] == 0.0
+
+
 def test_published_skill_on_a_finer_herd_clock_scores_the_same_model_steps():
     # the herd every 30 s, the model's step 120 s: the skill looks a model step back on the
     # fine clock and equals the skill on the herd taken every 120 s; by hand, a prediction

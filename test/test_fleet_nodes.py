@@ -309,10 +309,12 @@ def test_a_robot_waits_until_its_animal_has_been_in_the_herd_long_enough(graph):
         msg.header.frame_id = 'map'
         now = ear.node.get_clock().now().nanoseconds
         msg.header.stamp.sec, msg.header.stamp.nanosec = now // 10 ** 9, now % 10 ** 9
-        for k in range(3):
+        # each robot's animal where the robot is (a waiting robot escorts its animal: here
+        # it stays put), a2 (no robot) elsewhere
+        for k, (x, y) in enumerate([(-1.0, 0.0), (1.0, 0.0), (2.0, 2.0)]):
             pose = Pose()
-            pose.position.x = float(k) if (k != 1 or a1_seen[0]) else math.nan
-            pose.position.y = pose.position.x
+            pose.position.x, pose.position.y = (x, y) if (k != 1 or a1_seen[0]) \
+                else (math.nan, math.nan)
             msg.poses.append(pose)
         poses.publish(msg)
         params.publish(matrix(theta, ('agent', 'param')))
@@ -323,6 +325,44 @@ def test_a_robot_waits_until_its_animal_has_been_in_the_herd_long_enough(graph):
         'r2 followed a law its animal had not been in the herd for'
     a1_seen[0] = True
     assert ear.spin(10.0, until=lambda: cmds['r2'][-1][1].linear.x > 0.05)
+
+
+@pytest.mark.parametrize('warmup', ['escort', 'hold'])
+def test_a_waiting_robot_escorts_its_animal_or_holds_still(graph, warmup):
+    # robots that wait for their animals' law (model_min_updates far off): with escort
+    # each goes to its animal's pose on /herd/poses (r1 at x = -1 to a0 at x = 5: east;
+    # r2 at x = 1 to a1 at x = -5: west), capped at max_speed; with hold they stand still
+    from geometry_msgs.msg import Pose, PoseArray
+
+    from herd_ros.nodes.ros_common import tensor_message as matrix
+    g, ear = graph
+    cmds, model, theta = topic_controller(g, ear, 'max_speed:=0.8', 'model_min_updates:=1000',
+                                          f'wait_mode:={warmup}')
+    publish_structure(ear, model)
+    params = ear.node.create_publisher(Float64MultiArray, '/herd/model/params', 10)
+    poses = ear.node.create_publisher(PoseArray, '/herd/poses', QoSProfile(depth=100))
+    hold_robots(ear, {'r1': (-1.0, 0.0), 'r2': (1.0, 0.0)})
+
+    def tick():
+        msg = PoseArray()
+        msg.header.frame_id = 'map'
+        now = ear.node.get_clock().now().nanoseconds
+        msg.header.stamp.sec, msg.header.stamp.nanosec = now // 10 ** 9, now % 10 ** 9
+        for x in (5.0, -5.0, 0.0):
+            pose = Pose()
+            pose.position.x = x
+            msg.poses.append(pose)
+        poses.publish(msg)
+        params.publish(matrix(theta, ('agent', 'param')))
+    ear.node.create_timer(0.25, tick)
+    if warmup == 'escort':
+        assert ear.spin(15.0, until=lambda: cmds['r1'] and cmds['r2']
+                        and cmds['r1'][-1][1].linear.x > 0.7
+                        and cmds['r2'][-1][1].linear.x < -0.7)
+        assert max(abs(m.linear.x) for r in cmds for _, m in cmds[r]) <= 0.8 + 1e-9
+    else:
+        assert ear.spin(15.0, until=lambda: len(cmds['r1']) > 20 and len(cmds['r2']) > 20)
+        assert all(m.linear.x == m.linear.y == 0.0 for r in cmds for _, m in cmds[r])
 
 
 def test_the_fleet_starts_together_once_every_robot_has_reported(graph):

@@ -56,6 +56,10 @@ def test_robots_learn_from_replayed_cows_and_move_like_them(tmp_path, ros_env, c
     params['replay']['ros__parameters']['exit_when_done'] = True
     params['replay']['ros__parameters']['wait_for_subscribers'] = 1
     params['gps_ingest']['ros__parameters']['fix_queue_depth'] = 1000
+    # the robots wait standing at their animals' first poses (not escorting them): the run
+    # below is the law's from its first motion (the escort is tested in test_fleet_nodes
+    # and by the demo, which scores each robot from its law's start)
+    params['controller']['ros__parameters']['wait_mode'] = 'hold'
     params['record'] = {'ros__parameters': {
         'bag': str(tmp_path / 'graph_bag'),
         'topics': ['/herd/poses', '/fleet/poses', '/herd/model/params']}}

@@ -108,8 +108,8 @@ def run(args) -> int:
           f'snapshots, {summary["model_updates"]} model updates, {summary["robot_samples"]} '
           f'robot samples. Herd statistics, animals vs robots (mean over the herd; each '
           f'animal and its robot seen at the animal\'s fixes, where its track was informed, '
-          f'and where it has a herd pose; in brackets the herd poses and the robots\' own '
-          f'positions at the ticks):')
+          f'and where it has a herd pose, from the moment the robot\'s law took over; in '
+          f'brackets the herd poses and the robots\' own positions at the ticks):')
     cows, robots = summary['cows'], summary['robots']
     cows_own = summary.get('cows_continuous') or {}
     own = summary.get('robots_continuous') or {}
@@ -121,8 +121,18 @@ def run(args) -> int:
               f'({100 * summary["herd_relative_difference"].get(key, float("nan")):.0f} % apart)'
               f'  [{c_own:8.3f} vs {r_own:8.3f}]')
     v = summary['verdict']
-    print(f'Each robot against its animal (every statistic within {100 * v["bar"]:.0f} %): '
-          + ', '.join(f'{r} ({e["animal"]}, started {e["start_offset_m"]:.1f} m off) '
+    since = summary.get('law_since') or {}
+    t_first = summary.get('bag_start_s')
+
+    def took_over(r):
+        t = since.get(r)
+        if t is None:
+            return ', its law never took over' if r in since else ''
+        return f', law from {(t - t_first) / 60:.0f} min' if t_first is not None else ''
+    print(f'Each robot against its animal (every statistic within {100 * v["bar"]:.0f} %; '
+          f'where it stood when its law took over): '
+          + ', '.join(f'{r} ({e["animal"]}, started {e["start_offset_m"]:.1f} m off'
+                      f'{took_over(r)}) '
                       f'{"pass" if e["pass"] else "FAIL"}' for r, e in v['robots'].items())
           + f'; herd {"pass" if v["herd_pass"] else "FAIL"}')
     sk = summary['prediction_skill']

@@ -280,9 +280,26 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
     if len(thetas):
         first_model_t = param_times[0]
         active &= times > first_model_t
+    # each robot and its animal from the tick the robot's law took over (before it, the
+    # robot waited: it escorted its animal or held still, control/escort.py)
+    law_since = getattr(getattr(controller, 'policy', None), 'law_since', None)
+    robot_fixes = seen_at_fixes(times, fix_times, fix_xy)
+    if law_since is not None and len(law_since) == len(robots):
+        before = ~(times[:, None] >= law_since[None, :])         # (T, R); NaN: never
+        rob[before] = np.nan
+        robot_fixes[before] = np.nan
+        active &= ~before.all(axis=1)
+        n = min(len(robots), len(agents))                       # robot k follows animal k
+        cows_at_fixes.positions[:, :n][before[:, :n]] = np.nan
+        scored = np.array(cows.positions, dtype=float)
+        scored[:, :n][before[:, :n]] = np.nan
+        cows_scored = HerdTrajectory(times, agents, scored)
+        facts_law = {r: (float(v) if np.isfinite(v) else None)
+                     for r, v in zip(robots, law_since)}
+    else:
+        facts_law, cows_scored = None, cows
     robots_traj = HerdTrajectory(times[active], robots, rob[active])
-    at_fixes = HerdTrajectory(times[active], robots,
-                              seen_at_fixes(times, fix_times, fix_xy)[active])
+    at_fixes = HerdTrajectory(times[active], robots, robot_fixes[active])
     from herd_ros.trajectory import write_trajectory_csv
     predictions = HerdTrajectory(pred_times, agents, preds)
     write_trajectory_csv(out / 'herd_poses.csv', cows)
@@ -296,6 +313,10 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
              'herd_snapshots': int(len(times)), 'model_updates': int(len(thetas)),
              'robot_samples': int(active.sum()), 'model_file': str(model_path),
              'prediction_skill': skill, 'estimator_skill': live_skill}
+    if facts_law is not None:
+        # the moment (bag time, s) each robot's law took over; scored from there
+        facts['law_since'] = facts_law
+        facts['bag_start_s'] = info.start_ns * 1e-9
     pace = getattr(getattr(controller, 'policy', None), 'pace', None)
     if pace is not None:
         # each robot's factor on its noise, matched to its animal's speed (pace_match)
@@ -309,8 +330,8 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
         facts['place_share_history'] = [{'time': float(t), 'shares': [float(v) for v in f]}
                                         for t, f in place.history]
     profile_size = int(params['estimator']['ros__parameters'].get('profile_size', 6))
-    return write_demo_report(out, cows, robots_traj, agents, param_times, thetas, fence, facts,
-                             law=setup.law, profile_size=profile_size,
+    return write_demo_report(out, cows_scored, robots_traj, agents, param_times, thetas, fence,
+                             facts, law=setup.law, profile_size=profile_size,
                              robots_at_fixes=at_fixes, cows_at_fixes=cows_at_fixes)
 
 

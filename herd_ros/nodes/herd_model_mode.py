@@ -16,6 +16,7 @@ from std_msgs.msg import Float64MultiArray, String
 
 from herd_ros.control.animal_steps import AnimalSteps
 from herd_ros.control.damping import damping_check
+from herd_ros.control.escort import escort_velocity
 from herd_ros.control.fleet_observation import FleetObservation
 from herd_ros.control.herd_follower import HerdClockHold, HerdFollower, follower_for
 from herd_ros.control.pace_match import PaceMatch
@@ -66,7 +67,15 @@ class HerdModelPolicy:
         # live law once it has min_updates of them (animal_steps)
         self.steps: AnimalSteps | None = None
         self.present = None        # (N,) which animals had a pose at the latest herd tick
-        self._waiting = ()         # the robots that held still at the last command
+        self._waiting = ()         # the robots that waited at the last command
+        # while it waits a robot escorts its animal (escort) or stands still (hold)
+        self.warmup = str(p['wait_mode'])
+        self.animal_xy = None      # (R, 2) each robot's animal's latest pose (robot order)
+        self.animal_v = None       # (R, 2) ... and its velocity over the last herd tick
+        self._last_tick = None     # (t, animals (N, 2)) of the previous herd tick
+        self._tick_step = None     # the herd clock's latest step (s)
+        # node time at which each robot's law took over (NaN: not yet; a model file: at once)
+        self.law_since: np.ndarray | None = None
         if self.source == 'file':
             model = self._model_from_parameters()
             problem, warning = damping_check(model.damping, list(model.agents))
@@ -314,7 +323,8 @@ class HerdModelPolicy:
         (:class:`~herd_ros.control.animal_steps.AnimalSteps`), and each robot against its
         animal for the pace match (:class:`~herd_ros.control.pace_match.PaceMatch`; the
         robots' positions are their latest odometry, timed by its own stamps: at a fast
-        replay it arrives in bursts)."""
+        replay it arrives in bursts); each robot's animal's pose and velocity for the
+        escort of a robot that waits (:mod:`herd_ros.control.escort`)."""
         st = self.structure
         if st is None or len(msg.poses) != len(st.agents):
             return
@@ -327,15 +337,27 @@ class HerdModelPolicy:
         self.present = np.isfinite(animals).all(axis=-1)
         self._mark_in_herd()
         follower, index = self.follower, self.robot_rows()
-        if follower is None or index is None:
+        if index is not None:
+            self.animal_xy = animals[index]
+            v = np.full(animals.shape, np.nan)
+            last = self._last_tick
+            if last is not None and t > last[0] and last[1].shape == animals.shape:
+                v = (animals - last[1]) / (t - last[0])
+                self._tick_step = t - last[0]
+            self.animal_v = v[index]
+        self._last_tick = (t, animals)
+        if index is None:
             return
-        self._match_place(t, animals, follower, index)
+        if follower is not None:
+            self._match_place(t, animals, follower, index)
         if not self.match_pace:
             return
-        if self.pace is None or self.pace.lag != follower.dt or self.pace.n != len(index):
-            self.pace = PaceMatch(len(index), follower.dt)
+        # the animals' side from the first tick (a robot's own samples from its law's start)
+        if self.pace is None or self.pace.lag != st.dt or self.pace.n != len(index):
+            self.pace = PaceMatch(len(index), st.dt)
         node = self.node
-        if self.pace.observe(t, animals[index], node.odom_stamp, node.positions):
+        if self.pace.observe(t, animals[index], node.odom_stamp,
+                             self._under_law(node.positions)) and follower is not None:
             follower.noise_gain = self.pace.factors.copy()
             self.status = self.status.split(', pace-matched')[0] + self._pace_status()
             f = self.pace.factors[node.owned]
@@ -355,6 +377,7 @@ class HerdModelPolicy:
         robots = np.asarray(self.node.positions, dtype=float).reshape(-1, 2)
         counted = np.isfinite(robots).all(axis=-1) & follower.in_herd
         robot_d = np.where(counted[:, None], place_offsets(robots, counted), np.nan)
+        robot_d = self._under_law(robot_d)       # an escorting robot's place is not the law's
         animal_d = place_offsets(animals)[index]
         limit = stable_shares(follower.damping, place[1], follower.dt, len(index))
         if self.place_match.observe(t, animal_d, robot_d, place[0], place[2], limit):
@@ -375,6 +398,14 @@ class HerdModelPolicy:
             return
         self.follower.in_herd = present[index]
 
+    def _under_law(self, rows) -> np.ndarray:
+        """``rows`` (R, 2), NaN for the robots whose law has not taken over yet."""
+        rows = np.array(rows, dtype=float).reshape(-1, 2)
+        since = self.law_since
+        if since is None or len(since) != len(rows):
+            return np.full_like(rows, np.nan)        # no command yet: none under a law
+        return np.where(np.isnan(since)[:, None], np.nan, rows)
+
     def waiting(self) -> np.ndarray | None:
         """(R,) the robots whose animal has been in the herd for fewer than
         ``model_min_updates`` model steps (they hold still), or None when none waits."""
@@ -394,7 +425,8 @@ class HerdModelPolicy:
         controller ticks faster than the model (:class:`HerdClockHold`), else advanced by
         the elapsed fraction of model steps (:meth:`HerdFollower.advance`)."""
         if self.follower is None:
-            return np.zeros_like(state.positions)
+            return self._warmup(state, np.zeros_like(state.positions),
+                                np.ones(len(state.positions), dtype=bool))
         dt = self.follower.dt
         if state.period < dt:
             if getattr(self, 'hold', None) is None or self.hold.dt != dt:
@@ -410,11 +442,38 @@ class HerdModelPolicy:
         if waiting != self._waiting:
             self._waiting = waiting
             names = [self.robots[k] for k in waiting if k < len(self.robots)]
+            doing = 'escort their animal' if self.warmup == 'escort' else 'hold still'
             self.node.get_logger().info(
-                f'{", ".join(names)} hold still until their animal has been in the herd '
+                f'{", ".join(names)} {doing} until their animal has been in the herd '
                 f'for {self.min_updates} model steps' if names else
                 'every robot follows its animal\'s law')
-        if wait is not None and len(wait) == len(command):
-            # a robot whose animal's law is still young holds still (animal_steps)
-            command = np.where(wait[:, None], 0.0, command)
-        return command
+        if wait is None or len(wait) != len(command):
+            wait = np.zeros(len(command), dtype=bool)
+        return self._warmup(state, command, wait)
+
+    def _warmup(self, state: FleetObservation, command: np.ndarray,
+                wait: np.ndarray) -> np.ndarray:
+        """``command`` with each waiting robot's replaced: towards its animal's latest pose
+        (``escort``, :func:`~herd_ros.control.escort.escort_velocity` at τ the herd clock's
+        step)
+        or 0 (``hold``); records when each robot's law took over (:attr:`law_since`)."""
+        n = len(command)
+        if self.law_since is None or len(self.law_since) != n:
+            self.law_since = np.full(n, np.nan)
+        if self.follower is not None:
+            start = ~wait & np.isnan(self.law_since)
+            self.law_since[start] = state.time
+        if not wait.any():
+            return command
+        hold = np.zeros_like(command)
+        st = getattr(self, 'structure', None) or self.follower
+        animals = self.animal_xy
+        if self.warmup == 'escort' and st is not None and animals is not None and \
+                len(animals) == n:
+            u, tick = self.animal_v, self._tick_step or st.dt
+            if u is not None and len(u) == n:
+                # the animal's pose carried on to now (at most a herd tick past its tick)
+                ahead = np.clip(state.time - self._last_tick[0], 0.0, tick)
+                animals = np.where(np.isfinite(u), animals + u * ahead, animals)
+            hold = escort_velocity(state.positions, animals, tick, u)
+        return np.where(wait[:, None], hold, command)

@@ -246,6 +246,18 @@ HERD_MODEL = {
              'its animal\n'
              'has been on /herd/poses in N model steps (a collar that starts late has a young '
              'law).')),
+    'wait_mode': Param(
+        'escort',
+        "topic: what a robot does while it waits for its animal's law",
+        choices=('escort', 'hold'),
+        doc=('\n'
+             'With model_source topic, while a robot waits (model_min_updates): escort goes to '
+             'its\n'
+             "animal's latest pose on /herd/poses (v = u + (a - p)/tau, tau the herd clock's "
+             'step,\n'
+             'u its velocity, capped by the safety layer), so\n'
+             'that its law starts where its animal is; hold stands still where it is '
+             '(herd_ros/control/escort.py).')),
 }
 
 FLOCKING = {

@@ -151,9 +151,9 @@ PASS_BAR = 0.30
 
 def verdict(cows: HerdTrajectory, robots: HerdTrajectory, assignment, rel: dict,
             herd_rel: dict) -> dict:
-    """Each robot against its animal: where it started (its first position against the
-    animal's first herd pose, m) and whether every statistic is within :data:`PASS_BAR`;
-    the herd's likewise."""
+    """Each robot against its animal: where it started (its first position, against the
+    animal's latest herd pose at that moment, or its first one if it had none yet; m) and
+    whether every statistic is within :data:`PASS_BAR`; the herd's likewise."""
     out = {'bar': PASS_BAR, 'robots': {}}
     for k, (r, a) in enumerate(zip(robots.agents, assignment)):
         start = float('nan')
@@ -162,7 +162,10 @@ def verdict(cows: HerdTrajectory, robots: HerdTrajectory, assignment, rel: dict,
             pr = robots.positions[:, k]
             fc, fr = np.isfinite(pc).all(-1), np.isfinite(pr).all(-1)
             if fc.any() and fr.any():
-                start = float(np.hypot(*(pr[np.argmax(fr)] - pc[np.argmax(fc)])))
+                t0 = robots.times[np.argmax(fr)]
+                before = np.flatnonzero(fc & (cows.times <= t0 + 1e-9))
+                j = before[-1] if len(before) else np.argmax(fc)
+                start = float(np.hypot(*(pr[np.argmax(fr)] - pc[j])))
         out['robots'][r] = {'animal': a, 'start_offset_m': start,
                             'pass': bool(r in rel and all(v <= PASS_BAR
                                                           for v in rel[r].values()))}

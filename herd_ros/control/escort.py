@@ -1,0 +1,48 @@
+"""A robot that waits for its animal's law escorts its animal (issue 30: robots start where
+their animals are).
+
+With a live model a robot waits before it follows its animal's law: until the estimator's
+first ``model_min_updates`` updates are in, and until its own animal has been in the herd
+for as many model steps (a collar that starts late has a young law;
+:mod:`herd_ros.control.animal_steps`). On duty-cycled collars that is hours: on 12 h of
+cattle-like fixes at a 2-minute model step the robots held still for the first two hours at
+their animals' first poses, a formation of different moments (a collar that starts an hour
+late puts its robot at a place its herd had left), while the herd walked 150 m on. The law
+then started from there.
+
+Waiting, a robot now goes to its animal instead: a first-order approach to the animal's
+latest pose on ``/herd/poses``, with the animal's velocity fed forward,
+
+    v_k = u_k + (a_k − p_k) / τ                                             (E1)
+
+(u_k the animal's velocity over the last herd tick, 0 where unknown; τ the herd clock's
+step: the gap shrinks by e^{−h/τ} over a time h, the safety layer caps the speed). Without u_k a
+robot trails an animal walking at speed v by v τ (the lag of a first-order tracker of a
+ramp); with it, by nothing once the gap has closed. So when its law takes over the robot
+starts where its animal is at that moment. A robot whose animal has no pose, or which has
+no odometry, holds still (v = 0). What a robot
+does while it escorts is not the law's: the pace and place matches leave those samples out
+and the demo scores each robot from the tick its law took over.
+
+Plain numpy; no ROS (the controller's mode ``herd_model`` calls it, parameter
+``wait_mode``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def escort_velocity(robot_xy, animal_xy, tau: float, animal_velocity=None) -> np.ndarray:
+    """(E1): each robot's velocity (R, 2) towards its animal's pose, ``robot_xy`` and
+    ``animal_xy`` (R, 2) (NaN where unknown: that robot holds still), time constant ``tau``
+    (s, > 0), the animals' velocities ``animal_velocity`` (R, 2) fed forward (None or NaN:
+    none)."""
+    if not tau > 0:
+        raise ValueError(f'tau must be positive, got {tau}')
+    p = np.asarray(robot_xy, dtype=float).reshape(-1, 2)
+    a = np.asarray(animal_xy, dtype=float).reshape(-1, 2)
+    v = (a - p) / float(tau)
+    if animal_velocity is not None:
+        u = np.asarray(animal_velocity, dtype=float).reshape(-1, 2)
+        v = v + np.where(np.isfinite(u).all(axis=-1, keepdims=True), u, 0.0)
+    return np.where(np.isfinite(v).all(axis=-1, keepdims=True), v, 0.0)
