@@ -408,7 +408,8 @@ class HerdModelPolicy:
 
     def waiting(self) -> np.ndarray | None:
         """(R,) the robots whose animal has been in the herd for fewer than
-        ``model_min_updates`` model steps (they hold still), or None when none waits."""
+        ``model_min_updates`` model steps (they escort their animal or hold still,
+        ``wait_mode``), or None when none waits."""
         if self.source != 'topic' or self.min_updates <= 0:
             return None
         index = self.robot_rows()
@@ -455,8 +456,8 @@ class HerdModelPolicy:
                 wait: np.ndarray) -> np.ndarray:
         """``command`` with each waiting robot's replaced: towards its animal's latest pose
         (``escort``, :func:`~herd_ros.control.escort.escort_velocity` at τ the herd clock's
-        step)
-        or 0 (``hold``); records when each robot's law took over (:attr:`law_since`)."""
+        step) or 0 (``hold``); records when each robot's law took over
+        (:attr:`law_since`)."""
         n = len(command)
         if self.law_since is None or len(self.law_since) != n:
             self.law_since = np.full(n, np.nan)
