@@ -242,7 +242,7 @@ HERD_MODEL = {
         range=(0, 1000000000),
         doc=("topic only: ignore the first N model updates (an estimator's "
              'first estimates are poor;\n'
-             'robots hold still until a model is accepted); and a robot holds still until '
+             'robots wait until a model is accepted); and a robot waits (wait_mode) until '
              'its animal\n'
              'has been on /herd/poses in N model steps (a collar that starts late has a young '
              'law).')),
@@ -257,7 +257,9 @@ HERD_MODEL = {
              'step,\n'
              'u its velocity, capped by the safety layer), so\n'
              'that its law starts where its animal is; hold stands still where it is '
-             '(herd_ros/control/escort.py).')),
+             '(herd_ros/control/escort.py).\n'
+             "escort drives a robot onto its animal's position: for robots in the same field "
+             'as the animals, use hold.')),
 }
 
 FLOCKING = {
