@@ -59,7 +59,7 @@ def test_ticks_without_the_animal_count_for_nothing():
 
 
 def test_repeated_or_older_ticks_are_ignored():
-    match = PaceMatch(1, DT, min_samples=1, min_robot_samples=1, update_every=1)
+    match = PaceMatch(1, DT, min_samples=1, update_every=1)
     assert not match.observe(100.0, [[0.0, 0.0]], [100.0], [[0.0, 0.0]])
     assert not match.observe(100.0, [[5.0, 0.0]], [100.0], [[9.0, 0.0]])
     assert not match.observe(90.0, [[5.0, 0.0]], [90.0], [[9.0, 0.0]])
@@ -69,18 +69,3 @@ def test_repeated_or_older_ticks_are_ignored():
     assert match.factors[0] == pytest.approx(1 / 1.2)
     with pytest.raises(ValueError):
         PaceMatch(1, 0.0)
-
-
-def test_the_animal_is_counted_from_the_first_tick_its_robot_from_its_law():
-    # one tick per model step (120 s); the robot's law takes over at tick 4 (NaN before:
-    # it waited). The animal walks 1 m per tick throughout, the robot 2 m under its law.
-    # With 4 animal samples and 2 robot samples needed, the factor first moves at tick 6
-    # (robot samples over ticks 4-5 and 5-6), by the largest step (×1/1.5; the miss is ×2)
-    match = PaceMatch(1, DT, min_samples=4, min_robot_samples=2, update_every=1)
-    moved = []
-    for k in range(7):
-        robot = [[2.0 * k, 0.0]] if k >= 4 else [[np.nan, np.nan]]
-        moved.append(match.observe(DT * k, [[1.0 * k, 0.0]], [DT * k], robot))
-    assert moved == [False] * 6 + [True]
-    assert match.animal_samples[0] == 6 and match.samples[0] == 2
-    assert match.factors[0] == pytest.approx(1 / 1.5)

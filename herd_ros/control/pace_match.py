@@ -12,27 +12,25 @@ controller compares each robot's speed with its animal's over the same herd tick
 corrects the factor s_k on the robot's noise standard deviation — the method of
 simulated moments (McFadden 1989) with the robots as the simulation, one moment per robot:
 
-    v_A = Σ λ^age ‖p_A(t) − p_A(t − L)‖ / L / Σ λ^age      (the animal, from /herd/poses)
-    v_k = Σ λ^age ‖p_k(t) − p_k(t − L)‖ / (L s̄_k) / Σ λ^age  (its robot, per unit factor)
+    v_A = Σ λ^age ‖p_A(t) − p_A(t − L)‖ / L              (the animal, from /herd/poses)
+    v_k = Σ λ^age ‖p_k(t) − p_k(t − L)‖ / (L s̄_k)        (its robot, per unit factor)
     s_k ← clip(v_A / v_k, s_k / 1.5, 1.5 s_k)                (P1)
 
-forgetful means over the ticks at which the animal was seen at both ends (the robot is
-seen like its animal); the animal's from the first herd tick, its robot's from the tick
-its law took over (while it waits it escorts its animal or holds still,
-:mod:`herd_ros.control.escort`: not the law's speed), L the model's step (the statistics
-of Schwager et al. 2007 are taken at the model's step), s̄_k the factor in force over
-each sample (the geometric mean of its two ends) and λ = 1 − 1/``memory``. An animal's
-speed over an hour is mostly whether it walked in that hour: on the 72-hour cattle
-analog the robot-to-animal speed ratio of one-hour windows ranges from 0.1 to 36 while
-the whole run's is 1.5–1.9. So the memory is about a day of samples (2 880), the factor
-first moves once the animal has ``min_samples`` (240) and its robot
-``min_robot_samples`` (60) and then every ``update_every`` (60) ticks, by at most a
-factor 1.5, and a miss below ``deadband`` (10 %) is left alone. Every sample, whatever
-factor it was drawn under, estimates the robot's speed per unit factor when the noise
-sets its speed; where a field, a pull or a neighbour carries part of it (v = c + d s),
-(P1) is the fixed-point iteration s ← v_A / (c/s + d), which converges to c + d s = v_A
-(its slope there is c / v_A < 1) when c < v_A, and sinks to the floor when the drift
-alone outruns the animal. A version
+over the ticks at which the animal was seen at both ends and the robot followed its law
+(the robot is seen like its animal; while it waits it escorts its animal or holds still,
+:mod:`herd_ros.control.escort`, which is not the law's speed), L the model's step (the
+statistics of Schwager et al. 2007 are taken at the model's step), s̄_k the factor in
+force over each sample (the geometric mean of its two ends) and λ = 1 − 1/``memory``. An
+animal's speed over an hour is mostly whether it walked in that hour: on the 72-hour
+cattle analog the robot-to-animal speed ratio of one-hour windows ranges from 0.1 to 36
+while the whole run's is 1.5–1.9. So the memory is about a day of samples (2 880), the
+factor first moves after ``min_samples`` (240) and then every ``update_every`` (60)
+ticks, by at most a factor 1.5, and a miss below ``deadband`` (10 %) is left alone.
+Every sample, whatever factor it was drawn under, estimates the robot's speed per unit
+factor when the noise sets its speed; where a field, a pull or a neighbour carries part
+of it (v = c + d s), (P1) is the fixed-point iteration s ← v_A / (c/s + d), which
+converges to c + d s = v_A (its slope there is c / v_A < 1) when c < v_A, and sinks to
+the floor when the drift alone outruns the animal. A version
 with one-hour windows and no memory let the factors wander from 0.4 to 2.
 
 Plain numpy; no ROS. The controller's mode ``herd_model`` feeds it
@@ -47,10 +45,8 @@ import numpy as np
 #: the samples' memory (e-folding, in samples): about a day of a 30 s herd clock, so
 #: that the comparison spans an animal's rests and walks
 MEMORY = 2880
-#: samples of the animal before its robot's factor first moves (from the first herd tick),
-#: samples of the robot under its law, and ticks between corrections
+#: samples before a robot's factor first moves, and ticks between corrections
 MIN_SAMPLES = 240
-MIN_ROBOT_SAMPLES = 60
 UPDATE_EVERY = 60
 #: a miss below this (relative) is left alone
 DEADBAND = 0.10
@@ -66,8 +62,7 @@ class PaceMatch:
     :attr:`factors`."""
 
     def __init__(self, n_robots: int, lag_s: float, *, memory: float = MEMORY,
-                 min_samples: int = MIN_SAMPLES,
-                 min_robot_samples: int = MIN_ROBOT_SAMPLES, update_every: int = UPDATE_EVERY,
+                 min_samples: int = MIN_SAMPLES, update_every: int = UPDATE_EVERY,
                  deadband: float = DEADBAND, bounds=BOUNDS):
         if not lag_s > 0:
             raise ValueError(f'lag_s must be positive, got {lag_s}')
@@ -75,7 +70,6 @@ class PaceMatch:
         self.lag = float(lag_s)
         self.keep = 1.0 - 1.0 / float(memory)
         self.min_samples = int(min_samples)
-        self.min_robot_samples = int(min_robot_samples)
         self.update_every = int(update_every)
         self.deadband = float(np.log1p(deadband))
         self.bounds = (float(bounds[0]), float(bounds[1]))
@@ -84,11 +78,8 @@ class PaceMatch:
         self.history: list[tuple[float, np.ndarray]] = []    # (tick, factors) per change
         self._ticks = deque()            # (t, animal (R, 2), robot t (R,), robot (R, 2), s)
         self._animal = np.zeros(self.n)  # forgetful sums of the animal's speeds
-        self._animal_w = np.zeros(self.n)    # ... and of their weights
-        self._robot = np.zeros(self.n)   # ... of its robot's, per unit factor
-        self._robot_w = np.zeros(self.n)
-        self.animal_samples = np.zeros(self.n, np.int64)
-        self.samples = np.zeros(self.n, np.int64)    # the robot's
+        self._robot = np.zeros(self.n)   # ... and of its robot's, per unit factor
+        self.samples = np.zeros(self.n, np.int64)
         self._since = 0
 
     def observe(self, t: float, animal_xy, robot_t, robot_xy) -> bool:
@@ -113,25 +104,19 @@ class PaceMatch:
             dr = rt - rt0
             with np.errstate(invalid='ignore', divide='ignore'):
                 vr = np.hypot(*(r - r0).T) / dr / np.sqrt(s0 * self.factors)
-            seen = np.isfinite(va)
-            ok = seen & np.isfinite(vr) & (dr > 0)
-            self._animal[seen] = self.keep * self._animal[seen] + va[seen]
-            self._animal_w[seen] = self.keep * self._animal_w[seen] + 1.0
-            self.animal_samples[seen] += 1
+            ok = np.isfinite(va) & np.isfinite(vr) & (dr > 0)
+            self._animal[ok] = self.keep * self._animal[ok] + va[ok]
             self._robot[ok] = self.keep * self._robot[ok] + vr[ok]
-            self._robot_w[ok] = self.keep * self._robot_w[ok] + 1.0
             self.samples[ok] += 1
         self._since += 1
         if self._since < self.update_every:
             return False
         self._since = 0
-        ready = (self.animal_samples >= self.min_samples) & \
-            (self.samples >= self.min_robot_samples) & (self._animal > 0) & (self._robot > 0)
+        ready = (self.samples >= self.min_samples) & (self._animal > 0) & (self._robot > 0)
         if not ready.any():
             return False
         with np.errstate(divide='ignore', invalid='ignore'):
-            miss = np.log(self.factors * (self._robot / self._robot_w)
-                          / (self._animal / self._animal_w))              # > 0: too fast
+            miss = np.log(self.factors * self._robot / self._animal)    # > 0: too fast
         move = ready & (np.abs(miss) > self.deadband)
         step = np.clip(np.where(move, miss, 0.0), -MAX_STEP, MAX_STEP)
         new = np.clip(self.factors * np.exp(-step), *self.bounds)

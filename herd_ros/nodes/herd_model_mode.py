@@ -352,7 +352,7 @@ class HerdModelPolicy:
             self._match_place(t, animals, follower, index)
         if not self.match_pace:
             return
-        # the animals' side from the first tick (a robot's own samples from its law's start)
+        # a robot and its animal count from the tick its law took over (_under_law)
         if self.pace is None or self.pace.lag != st.dt or self.pace.n != len(index):
             self.pace = PaceMatch(len(index), st.dt)
         node = self.node
