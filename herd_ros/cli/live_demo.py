@@ -290,9 +290,9 @@ def run_live_demo(bag, out_dir, rate: float | None = None, dt: float | None = No
         robot_fixes[before] = np.nan
         active &= ~before.all(axis=1)
         n = min(len(robots), len(agents))                       # robot k follows animal k
-        cows_at_fixes.positions[:, :n][before[:, :n]] = np.nan
         scored = np.array(cows.positions, dtype=float)
-        scored[:, :n][before[:, :n]] = np.nan
+        for animals in (cows_at_fixes.positions, scored):
+            animals[:, :n][before[:, :n]] = np.nan
         cows_scored = HerdTrajectory(times, agents, scored)
         facts_law = {r: (float(v) if np.isfinite(v) else None)
                      for r, v in zip(robots, law_since)}

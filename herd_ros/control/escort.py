@@ -32,17 +32,22 @@ from __future__ import annotations
 import numpy as np
 
 
-def escort_velocity(robot_xy, animal_xy, tau: float, animal_velocity=None) -> np.ndarray:
+def escort_velocity(robot_xy, animal_xy, tau: float, animal_velocity=None,
+                    ahead: float = 0.0) -> np.ndarray:
     """(E1): each robot's velocity (R, 2) towards its animal's pose, ``robot_xy`` and
     ``animal_xy`` (R, 2) (NaN where unknown: that robot holds still), time constant ``tau``
     (s, > 0), the animals' velocities ``animal_velocity`` (R, 2) fed forward (None or NaN:
-    none)."""
+    none); the pose is carried on with it by ``ahead`` seconds (the time since the herd
+    tick that gave the pose, at most ``tau``)."""
     if not tau > 0:
         raise ValueError(f'tau must be positive, got {tau}')
     p = np.asarray(robot_xy, dtype=float).reshape(-1, 2)
     a = np.asarray(animal_xy, dtype=float).reshape(-1, 2)
-    v = (a - p) / float(tau)
     if animal_velocity is not None:
         u = np.asarray(animal_velocity, dtype=float).reshape(-1, 2)
-        v = v + np.where(np.isfinite(u).all(axis=-1, keepdims=True), u, 0.0)
+        u = np.where(np.isfinite(u).all(axis=-1, keepdims=True), u, 0.0)
+        a = a + u * float(np.clip(ahead, 0.0, tau))
+    v = (a - p) / float(tau)
+    if animal_velocity is not None:
+        v = v + u
     return np.where(np.isfinite(v).all(axis=-1, keepdims=True), v, 0.0)

@@ -471,10 +471,8 @@ class HerdModelPolicy:
         animals = self.animal_xy
         if self.warmup == 'escort' and st is not None and animals is not None and \
                 len(animals) == n:
-            u, tick = self.animal_v, self._tick_step or st.dt
-            if u is not None and len(u) == n:
-                # the animal's pose carried on to now (at most a herd tick past its tick)
-                ahead = np.clip(state.time - self._last_tick[0], 0.0, tick)
-                animals = np.where(np.isfinite(u), animals + u * ahead, animals)
-            hold = escort_velocity(state.positions, animals, tick, u)
+            u = self.animal_v if self.animal_v is not None and len(self.animal_v) == n \
+                else None
+            hold = escort_velocity(state.positions, animals, self._tick_step or st.dt, u,
+                                   ahead=state.time - self._last_tick[0])
         return np.where(wait[:, None], hold, command)
