@@ -113,7 +113,8 @@ def test_bad_fixes_are_left_out_not_fatal():
 
 def test_the_compiled_likelihood_is_the_vectorised_one():
     from herd_ros.ingest import collar_bank
-    from herd_ros.ingest.motion_fit import _pack, innovation_loglik, innovation_loglik_numpy
+    from herd_ros.ingest.motion_fit import (_pack, innovation_loglik,
+                                            innovation_loglik_numpy, one_step_distance)
     if not collar_bank.AVAILABLE:
         pytest.skip('no compiled kernels')
     rng = np.random.default_rng(12)
@@ -128,6 +129,67 @@ def test_the_compiled_likelihood_is_the_vectorised_one():
         np.testing.assert_allclose(innovation_loglik(t, z, rr, n, tv, D, sm, walk),
                                    innovation_loglik_numpy(t, z, rr, n, tv, D, sm, walk),
                                    rtol=1e-10)
+        np.testing.assert_allclose(one_step_distance(t, z, rr, n, tv, D, sm, walk),
+                                   innovation_loglik_numpy(t, z, rr, n, tv, D, sm, walk,
+                                                           distance=True), rtol=1e-10)
+
+
+@pytest.mark.parametrize('compiled', [True, False])
+def test_the_one_step_distance_of_a_follower_is_the_fix_to_fix_distance(compiled, kernels):
+    """Fixes trusted to 0.1 mm under a random walk whose velocity forgets itself in 10 ms:
+    the filter is at each fix, and predicts the next where the last was. The mean
+    distance is the mean of ‖z_k − z_{k−1}‖, by hand."""
+    from herd_ros.ingest.motion_fit import (_pack, innovation_loglik_numpy,
+                                            one_step_distance)
+    rng = np.random.default_rng(21)
+    t = np.cumsum(rng.uniform(30.0, 300.0, 40))
+    z = np.cumsum(rng.normal(0.0, 10.0, (40, 2)), axis=0)
+    tp, zp, rp, n = _pack([(t, z, np.full(40, np.nan))], 50)
+    args = (tp, zp, rp, n, np.array([[0.01]]), np.array([[1.0]]), np.array([[1e-8]]))
+    d = one_step_distance(*args) if compiled else innovation_loglik_numpy(*args,
+                                                                          distance=True)
+    assert d[0, 0] == pytest.approx(np.mean(np.hypot(*np.diff(z, axis=0).T)), rel=1e-4)
+
+
+def test_the_one_step_distance_of_a_constant_velocity_track(kernels):
+    """A collar on a straight line at 0.5 m/s, a fix a minute, trusted to 0.1 mm, under an
+    IOU whose velocity persists (τ_v 10⁶ s): the first prediction is the first fix (its
+    velocity taken as 0), every later one exact. Mean distance: 30 m over the 19
+    predictions, by hand, from the compiled loop and the numpy reference."""
+    from herd_ros.ingest.motion_fit import (_pack, innovation_loglik_numpy,
+                                            one_step_distance)
+    t = 60.0 * np.arange(20)
+    z = np.outer(0.5 * t, [0.6, 0.8])
+    tp, zp, rp, n = _pack([(t, z, np.full(20, np.nan))], 20)
+    args = (tp, zp, rp, n, np.array([[1e6]]), np.array([[1e4]]), np.array([[1e-8]]))
+    expected = 30.0 / 19
+    assert one_step_distance(*args)[0, 0] == pytest.approx(expected, rel=1e-3)
+    assert innovation_loglik_numpy(*args, distance=True)[0, 0] == pytest.approx(
+        expected, rel=1e-3)
+
+
+def test_a_correlated_walk_is_kept_only_where_it_also_predicts_better(kernels):
+    """The IOU is chosen where it is both the likelier model (AIC) and the closer one-step
+    predictor on the window: on known-truth correlated walks (τ_v 600 s) it is, and its
+    mean one-step distance is below the random walk's; collars whose velocity forgets
+    itself within the intervals (τ_v 0.5 s) are random walks."""
+    from herd_ros.ingest.motion_fit import _pack, one_step_distance
+    rng = np.random.default_rng(7)
+    tracks = [simulate_iou(rng, 300, velocity_tau=600.0, diffusion=0.5, position_std=3.0)
+              for _ in range(2)]
+    tracks += [simulate_iou(rng, 300, velocity_tau=0.5, diffusion=0.5, position_std=3.0)
+               for _ in range(2)]
+    cols = [(t, z, np.full(len(t), np.nan)) for t, z in tracks]
+    fits = fit_motion(cols, max_fixes=300)
+    assert [f.model for f in fits] == ['iou', 'iou', 'rw', 'rw']
+    t, z, r, n = _pack(cols, 300)
+    for j, f in enumerate(fits[:2]):
+        pts = np.array(f.optima)              # (random walk, IOU): log10 (τ_v, σ_a, σ_m²)
+        tv = 10.0 ** pts[:, 0]
+        d = one_step_distance(t[j:j + 1], z[j:j + 1], r[j:j + 1], n[j:j + 1], tv[None],
+                              ((10.0 ** pts[:, 1] * tv) ** 2)[None],
+                              (10.0 ** pts[:, 2])[None])[0]
+        assert d[1] < d[0]
 
 
 def _bounded_velocity_collars(n_collars, seed):

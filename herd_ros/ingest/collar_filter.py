@@ -98,10 +98,21 @@ stayed on the burst's place for ``reacquire_fixes`` fixes and went stale (measur
 synthetic collared cows: a burst of five fixes 330 m off, taken, then six genuine fixes
 rejected). Both hypotheses are now kept until the fixes decide: when the track moves to a
 reachable chain, the place it left (its last state's position and covariance) is kept for
-its next ``reacquire_fixes`` accepted fixes, and a fix beyond the track's envelope but
-within the envelope of that place starts (or continues) a reachable chain, confirmed on
-``confirm_fixes``: the track returns on the second fix back. When the new place holds for
-``reacquire_fixes`` accepted fixes, the left place is dropped (a real relocation).
+its next ``reacquire_fixes`` accepted fixes. A fix the track refuses that lies inside the gate of
+that place (its position and covariance, velocity 0, predicted to the fix with the
+collar's own motion model: the animal stayed there) takes the track back at once,
+updated with that fix, and the burst's place is forgotten; a fix beyond the track's
+envelope but within the envelope of that place (not its gate) starts (or continues) a
+reachable chain, confirmed on ``confirm_fixes``. When the new place holds for
+``reacquire_fixes`` accepted fixes, the left place is dropped (a real relocation). The
+same place is kept when the track takes a fix by the walk component of its motion
+mixture alone (outside the gate of its own model): a single fix a few hundred metres
+off after a few minutes' silence passes the walk's gate, and the fixes that come back
+are then beyond reach of the track. Such a place serves the return only; it does not
+make a fix within its envelope a reachable chain (its envelope, grown over the hours a
+duty-cycled collar may take to accept ``reacquire_fixes`` fixes, would admit bursts
+kilometres off). Measured on real GPS collars of cattle (doc/gps_ingest.md), where a
+logger's fixes leave for one to a few fixes and come back.
 
 Any fix the track accepts closes the open candidates (the burst is over). Isolated outliers
 in random directions never form a chain.
@@ -278,13 +289,15 @@ class FilterParams:
 @dataclass
 class LeftPlace:
     """Where a track was (its last accepted state's position ``z`` and covariance ``r`` at
-    ``t``) before it moved to a reachable chain, kept for its next ``fixes_left`` accepted
-    fixes (module docstring: *the place the track left*)."""
+    ``t``) before it moved to a reachable chain (``for_chain``) or took a fix by its walk
+    component alone, kept for its next ``fixes_left`` accepted fixes (module docstring:
+    *the place the track left*)."""
 
     t: float
     z: np.ndarray
     r: np.ndarray
     fixes_left: int
+    for_chain: bool = True
 
     def reaches(self, stamp, z, r, params, gate_sigma) -> bool:
         """The fix is within the speed envelope of this place: ``‖z − z_left‖ ≤
@@ -582,7 +595,8 @@ class CollarFilter:
         if dist > allowed:
             # beyond reach of the track, but maybe not of where it was before it last
             # moved: then the fix may be the animal back from a burst the track followed
-            jump = self.left_place is None or not self.left_place.reaches(
+            left = self.left_place
+            jump = left is None or not left.for_chain or not left.reaches(
                 stamp, z, r, p, self._gate_sigma)
             return self._candidate_fix(stamp, z, r, 'speed', jump,
                                        f'{dist:.1f} m in {tau:.3g} s is beyond reach '
@@ -631,6 +645,10 @@ class CollarFilter:
             self.kf.predict(F=F, Q=Q)
             self.kf.update(z, R=r)
         else:
+            if d2 > self._gate and self.left_place is None:
+                # taken by the walk component alone: a move the track may have to undo
+                self.left_place = LeftPlace(self.t, self.x[:2].copy(), self.P[:2, :2].copy(),
+                                            int(p.reacquire_fixes), for_chain=False)
             self._mixture_update(z, r, x_pred, P_pred, P_pred[:2, :2] + r, d2, *walk)
         self.t = stamp
         self.candidates.clear()
@@ -747,6 +765,9 @@ class CollarFilter:
         chain = self._attach(stamp, z, r, jump, chain)
         need = int(self.params.reacquire_fixes if chain.jump else self.params.confirm_fixes)
         if len(chain.fixes) < need:
+            if self.left_place is not None and self._return_to_left(stamp, z, r):
+                return FixResult(True, 'reinitialised', 'back at the place the track left: '
+                                 'the track returned to it', d2)
             return self._reject(reason, detail, d2)
         self.left_place = None if chain.jump else LeftPlace(
             self.t, self.x[:2].copy(), self.P[:2, :2].copy(), int(self.params.reacquire_fixes))
@@ -755,6 +776,32 @@ class CollarFilter:
         kind = 'beyond reach or far outside its range' if chain.jump else 'outside the gate'
         return FixResult(True, 'reinitialised', f'{need} consistent fixes {kind}: the track '
                          f'moved to them', d2)
+
+    def _return_to_left(self, stamp, z, r) -> bool:
+        """A fix the track refuses that lies inside the gate of the place it left (that
+        place's position and covariance, velocity 0, predicted to the fix with the
+        collar's own motion model): the move was a burst, and the track goes back at once,
+        updated with this fix (module docstring: *the place the track left*)."""
+        p, left = self.params, self.left_place
+        x0 = np.array([left.z[0], left.z[1], 0.0, 0.0])
+        P0 = np.zeros((4, 4))
+        P0[:2, :2] = left.r
+        tau = stamp - left.t
+        F = transition(tau, p.velocity_tau)
+        xp = F @ x0
+        Pp = F @ P0 @ F.T + process_noise(tau, p.accel_std, p.velocity_tau)
+        y = z - xp[:2]
+        if float(y @ np.linalg.solve(Pp[:2, :2] + r, y)) > self._gate:
+            return False
+        self.kf.x = xp.reshape(4, 1)
+        self.kf.P = Pp
+        self.kf.update(z, R=r)
+        self.t = stamp
+        self.candidates.clear()
+        self.left_place = None
+        self.counters['accepted'] += 1
+        self.counters['reinitialised'] += 1
+        return True
 
     def _adopt(self, chain: _Candidate):
         """Re-initialise on the chain's first fix and update through the rest."""

@@ -333,6 +333,29 @@ def _held(left, i):
 
 
 @_jit
+def _return_to_left(i, s, z0, z1, r, left, accel_std, velocity_tau, gate, t, x, P, xp, Pp):
+    """CollarFilter._return_to_left: a refused fix inside the gate of the place the track
+    left goes back there at once (True; the state updated with the fix)."""
+    x0 = np.zeros(4)
+    P0 = np.zeros((4, 4))
+    x0[0] = left[i, 1]
+    x0[1] = left[i, 2]
+    P0[0, 0] = left[i, 3]
+    P0[1, 0] = P0[0, 1] = left[i, 4]
+    P0[1, 1] = left[i, 5]
+    _predict(x0, P0, s - left[i, 0], accel_std, velocity_tau, xp, Pp)
+    d2, det = _mahalanobis2(xp, Pp, z0, z1, r)
+    if not d2 <= gate:
+        return False
+    _update(xp, Pp, z0, z1, r)
+    x[i, :] = xp
+    P[i, :, :] = Pp
+    t[i] = s
+    left[i, 0] = np.nan
+    return True
+
+
+@_jit
 def process_batch(collar, stamp, east, north, status, R,
                    t, x, P, ever, last_pos, last_report, counters, n_cand, cand_jump,
                    cand_len, cand_t, cand_z, cand_r, rng, left,
@@ -346,8 +369,9 @@ def process_batch(collar, stamp, east, north, status, R,
     component (else the motion mixture of FilterParams.walk, prior weight ``walk_prob``,
     its fixes' variance raised by ``walk_r2``); ``rng`` (N, 6) the moments of each
     collar's accepted states (its range: a chain far outside it needs ``reacquire``);
-    ``left`` (N, 7) = [t, e, n, r_ee, r_en, r_nn, fixes left] the place each collar's track
-    left when it last moved to a reachable chain (t NaN: none; CollarFilter.left_place)."""
+    ``left`` (N, 8) = [t, e, n, r_ee, r_en, r_nn, fixes left, for a chain] the place each
+    collar's track left when it last moved to a reachable chain (last column 1) or took a
+    fix by its walk component alone (0) (t NaN: none; CollarFilter.left_place)."""
     xp = np.empty(4)
     Pp = np.empty((4, 4))
     xw = np.empty(4)
@@ -420,7 +444,7 @@ def process_batch(collar, stamp, east, north, status, R,
                     reason = SPEED
                     # beyond reach of the track, maybe not of the place it left
                     jump = True
-                    if math.isfinite(left[i, 0]):
+                    if math.isfinite(left[i, 0]) and left[i, 7] > 0.0:
                         sl = math.sqrt(_max_eig(r[0, 0] + left[i, 3], r[1, 0] + left[i, 4],
                                                 r[1, 1] + left[i, 5]))
                         jump = math.hypot(z0 - left[i, 1], z1 - left[i, 2]) > _reach(
@@ -473,6 +497,16 @@ def process_batch(collar, stamp, east, north, status, R,
                                         cand_len, cand_t, cand_z, cand_r, max_speed,
                                         cruise_speed, sprint_s, gate_sigma)
                     if chain < 0 and walk_accel > 0.0:   # accepted: mixture update
+                        if d2 > gate and not math.isfinite(left[i, 0]):
+                            # taken by the walk component alone: a move it may undo
+                            left[i, 0] = t[i]
+                            left[i, 1] = xi[0]
+                            left[i, 2] = xi[1]
+                            left[i, 3] = Pi[0, 0]
+                            left[i, 4] = Pi[1, 0]
+                            left[i, 5] = Pi[1, 1]
+                            left[i, 6] = reacquire
+                            left[i, 7] = 0.0
                         _update(xp, Pp, z0, z1, r)
                         _update(xw, Pw, z0, z1, rw)
                         lw = (math.log(walk_prob) - 0.5 * math.log(detw) - 0.5 * d2w) - (
@@ -495,7 +529,14 @@ def process_batch(collar, stamp, east, north, status, R,
                         _held(left, i)
                 if chain >= 0:
                     need = reacquire if cand_jump[i, chain] else confirm
-                    if cand_len[i, chain] < need:
+                    if cand_len[i, chain] < need and math.isfinite(left[i, 0]) and \
+                            _return_to_left(i, s, z0, z1, r, left, accel_std[i],
+                                            velocity_tau[i], gate, t, x, P, xp, Pp):
+                        n_cand[i] = 0             # back at the place it left: a burst
+                        counters[i, C_ACC] += 1
+                        counters[i, C_REINIT] += 1
+                        code = REINITIALISED
+                    elif cand_len[i, chain] < need:
                         code = reason
                         if reason == SPEED:
                             counters[i, C_SPEED] += 1
@@ -514,6 +555,7 @@ def process_batch(collar, stamp, east, north, status, R,
                             left[i, 4] = P[i, 1, 0]
                             left[i, 5] = P[i, 1, 1]
                             left[i, 6] = reacquire
+                            left[i, 7] = 1.0
                         _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
                                cand_z, cand_r, accel_std[i], velocity_tau[i], v0)
                         counters[i, C_REINIT] += 1
@@ -611,8 +653,11 @@ def _walk_steps(t, i, m, walk_accel, walk_tau, out):
 
 
 @_jit
-def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber):
-    """ℓ of collar i's first ``m`` fixes at one parameter point (see motion_loglik);
+def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber,
+                distance=False):
+    """ℓ of collar i's first ``m`` fixes at one parameter point (see motion_loglik), or
+    with ``distance`` the mean distance (m) from each fix to the own model's prediction
+    of it (see motion_distance);
     ``walk`` the walk component's steps (:func:`_walk_steps`), or an empty array for none.
     Per step one log per component (of the product of the axes' variances) and, for the
     mixture, one exp and one log1p (ℓ_k = max + log1p(e^{−|Δ|}), the weights from the same
@@ -637,6 +682,7 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber):
         b[ax] = 0.0
         c[ax] = D / (2.0 * tv)
     ll = 0.0
+    dsum = 0.0
     ncomp = 2 if use_walk else 1
     for k in range(1, m):
         dt = t[i, k] - t[i, k - 1]
@@ -654,6 +700,7 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber):
                 extra = walk_r2
             nis = 0.0
             det = 1.0
+            y2 = 0.0
             for ax in range(2):
                 ap = a[ax] + 2.0 * f * b[ax] + f * f * c[ax] + qpp
                 bp = gg * (b[ax] + f * c[ax]) + qpv
@@ -664,12 +711,15 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber):
                 pp = p[ax] + f * v[ax]
                 y = z[i, k, ax] - pp
                 nis += y * y / S
+                y2 += y * y
                 det *= S
                 comp[j, 0, ax] = pp + kp * y
                 comp[j, 1, ax] = gg * v[ax] + kv * y
                 comp[j, 2, ax] = ap - kp * ap
                 comp[j, 3, ax] = bp - kp * bp
                 comp[j, 4, ax] = cp - kv * bp
+            if j == 0:
+                dsum += math.sqrt(y2)
             if not use_walk and nis > huber:
                 nis = 2.0 * math.sqrt(huber * nis) - huber
             lc[j] = (lg0 if j == 0 else lw0) - log_two_pi - 0.5 * math.log(det) - 0.5 * nis
@@ -707,6 +757,8 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber):
                      + w1 * (comp[1, 4, ax] + (v1 - vn) ** 2))
             p[ax] = pn
             v[ax] = vn
+    if distance:
+        return dsum / max(m - 1, 1)
     return ll
 
 
@@ -723,6 +775,22 @@ def motion_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk_accel,
         for g in range(velocity_tau.shape[1]):
             out[i, g] = _loglik_one(t, z, r, i, n[i], velocity_tau[i, g], diffusion[i, g],
                                     position_var[i, g], walk, walk_prob, walk_r2, huber)
+
+
+@_jit
+def motion_distance(t, z, r, n, velocity_tau, diffusion, position_var, walk_accel,
+                    walk_tau, walk_prob, walk_r2, out):
+    """:func:`herd_ros.ingest.motion_fit.one_step_distance` compiled: ``out[i, g]`` is
+    the mean distance (m) from each of collar i's fixes after its first to where the
+    filter at parameter point g predicted it (its own model's prediction, as the track
+    says before the fix), the filter run as in :func:`motion_loglik`."""
+    walk = np.empty((t.shape[1] if walk_accel > 0.0 else 0, 5))
+    for i in range(t.shape[0]):
+        _walk_steps(t, i, n[i], walk_accel, walk_tau, walk)
+        for g in range(velocity_tau.shape[1]):
+            out[i, g] = _loglik_one(t, z, r, i, n[i], velocity_tau[i, g], diffusion[i, g],
+                                    position_var[i, g], walk, walk_prob, walk_r2, 0.0,
+                                    True)
 
 
 @_jit
