@@ -711,7 +711,8 @@ def lost_most(counters: dict, k: int) -> dict:
 
 
 def format_motion_fits(fits: dict) -> str:
-    """A small table of each collar's last fitted motion model: the model chosen by AIC,
+    """A small table of each collar's last fitted motion model: the model chosen (the IOU
+    where it is the likelier by AIC and the closer one-step predictor, else the random walk),
     τ_v (s), the long-run diffusion D (m²/s per axis), the speed std (m/s per axis), the
     fix std σ_m (m; ``given`` where the fixes carried a covariance) and the fixes fitted;
     ``prior`` for a collar with too few fixes to fit."""
