@@ -135,23 +135,7 @@ def innovation_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk=No
     """ℓ (module docstring) of N collars at G parameter points each: the compiled loop
     (:func:`herd_ros.ingest.collar_kernels.motion_loglik`) where the collar kernels are,
     else :func:`innovation_loglik_numpy` (same arguments, same numbers to rounding)."""
-    from herd_ros.ingest import collar_bank
-    if not collar_bank.AVAILABLE:
-        return innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
-                                       walk)
-    shape = np.broadcast_shapes(np.shape(velocity_tau), np.shape(diffusion),
-                                np.shape(position_var))
-
-    def arr(x, s=shape):
-        return np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=float), s))
-
-    out = np.empty(shape)
-    wa, wt, pw, wr2 = _walk(walk)
-    collar_bank.KERNELS.motion_loglik(
-        arr(t, np.shape(t)), arr(z, np.shape(z)), arr(r, np.shape(r)),
-        np.ascontiguousarray(n, dtype=np.int64), arr(velocity_tau), arr(diffusion),
-        arr(position_var), float(wa), float(wt), float(pw), float(wr2), HUBER_NIS, out)
-    return out
+    return _filter_pass(t, z, r, n, velocity_tau, diffusion, position_var, walk, False)
 
 
 def one_step_distance(t, z, r, n, velocity_tau, diffusion, position_var, walk=None):
@@ -162,10 +146,15 @@ def one_step_distance(t, z, r, n, velocity_tau, diffusion, position_var, walk=No
     (:func:`herd_ros.ingest.collar_kernels.motion_distance`) where the collar kernels
     are, else :func:`innovation_loglik_numpy` (``distance=True``). Arguments as
     :func:`innovation_loglik_numpy`; returns (N, G)."""
+    return _filter_pass(t, z, r, n, velocity_tau, diffusion, position_var, walk, True)
+
+
+def _filter_pass(t, z, r, n, velocity_tau, diffusion, position_var, walk, distance):
+    """:func:`innovation_loglik` (``distance`` False) or :func:`one_step_distance`."""
     from herd_ros.ingest import collar_bank
     if not collar_bank.AVAILABLE:
         return innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
-                                       walk, distance=True)
+                                       walk, distance=distance)
     shape = np.broadcast_shapes(np.shape(velocity_tau), np.shape(diffusion),
                                 np.shape(position_var))
 
@@ -174,10 +163,13 @@ def one_step_distance(t, z, r, n, velocity_tau, diffusion, position_var, walk=No
 
     out = np.empty(shape)
     wa, wt, pw, wr2 = _walk(walk)
-    collar_bank.KERNELS.motion_distance(
-        arr(t, np.shape(t)), arr(z, np.shape(z)), arr(r, np.shape(r)),
-        np.ascontiguousarray(n, dtype=np.int64), arr(velocity_tau), arr(diffusion),
-        arr(position_var), float(wa), float(wt), float(pw), float(wr2), out)
+    args = (arr(t, np.shape(t)), arr(z, np.shape(z)), arr(r, np.shape(r)),
+            np.ascontiguousarray(n, dtype=np.int64), arr(velocity_tau), arr(diffusion),
+            arr(position_var), float(wa), float(wt), float(pw), float(wr2))
+    if distance:
+        collar_bank.KERNELS.motion_distance(*args, out)
+    else:
+        collar_bank.KERNELS.motion_loglik(*args, HUBER_NIS, out)
     return out
 
 
