@@ -15,7 +15,8 @@ class FleetObservation:
     velocity (R, 2) m/s measured in the world frame, active (R,) fresh odometry,
     owned (R,) commanded by this controller, last_command (R, 2) world velocity issued
     last tick after the safety layer (measured velocity for robots not owned), period h (s),
-    time (s, node clock).
+    time (s, node clock), pose_age (R,) s since each robot's odometry was stamped (None or
+    NaN: unknown).
     """
 
     robots: list[str]
@@ -27,3 +28,4 @@ class FleetObservation:
     last_command: np.ndarray
     period: float
     time: float
+    pose_age: np.ndarray | None = None

@@ -16,7 +16,7 @@ from std_msgs.msg import Float64MultiArray, String
 
 from herd_ros.control.animal_steps import AnimalSteps
 from herd_ros.control.damping import damping_check
-from herd_ros.control.escort import escort_velocity
+from herd_ros.control.escort import escort_velocity, loop_lag
 from herd_ros.control.fleet_observation import FleetObservation
 from herd_ros.control.herd_follower import HerdClockHold, HerdFollower, follower_for
 from herd_ros.control.pace_match import PaceMatch
@@ -74,6 +74,7 @@ class HerdModelPolicy:
         self.animal_v = None       # (R, 2) ... and its velocity over the last herd tick
         self._last_tick = None     # (t, animals (N, 2)) of the previous herd tick
         self._tick_step = None     # the herd clock's latest step (s)
+        self._last_escort = None   # node time (s) of the previous escort command
         # node time at which each robot's law took over (NaN: not yet; a model file: at once)
         self.law_since: np.ndarray | None = None
         if self.source == 'file':
@@ -473,6 +474,10 @@ class HerdModelPolicy:
                 len(animals) == n:
             u = self.animal_v if self.animal_v is not None and len(self.animal_v) == n \
                 else None
-            hold = escort_velocity(state.positions, animals, self._tick_step or st.dt, u,
+            lag = loop_lag(state.pose_age, state.time - self._last_escort
+                           if self._last_escort is not None else None)
+            tau = np.maximum(self._tick_step or st.dt, lag)           # (E2)
+            hold = escort_velocity(state.positions, animals, tau, u,
                                    ahead=state.time - self._last_tick[0])
+            self._last_escort = state.time
         return np.where(wait[:, None], hold, command)
