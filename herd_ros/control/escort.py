@@ -60,24 +60,23 @@ def loop_lag(pose_age, since_last_tick) -> np.ndarray:
 
 
 def escort_velocity(robot_xy, animal_xy, tau: float, animal_velocity=None,
-                    ahead: float = 0.0) -> np.ndarray:
+                    ahead: float = 0.0, lag=None) -> np.ndarray:
     """(E1): each robot's velocity (R, 2) towards its animal's pose, ``robot_xy`` and
     ``animal_xy`` (R, 2) (NaN where unknown: that robot holds still), time constant ``tau``
-    (s, > 0; a number or one per robot, (E2)), the animals' velocities
-    ``animal_velocity`` (R, 2) fed forward (None or NaN: none); the pose is carried on
-    with it by ``ahead`` seconds (the time since the herd tick that gave the pose, at most
-    ``tau``)."""
+    (s, > 0; a number or one per robot), raised to each robot's loop ``lag`` (R,) where
+    given ((E2), :func:`loop_lag`), the animals' velocities ``animal_velocity`` (R, 2) fed
+    forward (None or NaN: none); the pose is carried on with it by ``ahead`` seconds (the
+    time since the herd tick that gave the pose, at most ``tau``)."""
     tau = np.asarray(tau, dtype=float)
     if not np.all(tau > 0):
         raise ValueError(f'tau must be positive, got {tau}')
     p = np.asarray(robot_xy, dtype=float).reshape(-1, 2)
     a = np.asarray(animal_xy, dtype=float).reshape(-1, 2)
+    if lag is not None:
+        tau = np.maximum(tau, lag)                                     # (E2)
     tau = np.broadcast_to(tau, (len(p),))[:, None]
-    if animal_velocity is not None:
-        u = np.asarray(animal_velocity, dtype=float).reshape(-1, 2)
-        u = np.where(np.isfinite(u).all(axis=-1, keepdims=True), u, 0.0)
-        a = a + u * np.clip(ahead, 0.0, tau)
-    v = (a - p) / tau
-    if animal_velocity is not None:
-        v = v + u
+    u = np.zeros_like(p) if animal_velocity is None else \
+        np.asarray(animal_velocity, dtype=float).reshape(-1, 2)
+    u = np.where(np.isfinite(u).all(axis=-1, keepdims=True), u, 0.0)
+    v = (a + u * np.clip(ahead, 0.0, tau) - p) / tau + u
     return np.where(np.isfinite(v).all(axis=-1, keepdims=True), v, 0.0)

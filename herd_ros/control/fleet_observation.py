@@ -29,3 +29,14 @@ class FleetObservation:
     period: float
     time: float
     pose_age: np.ndarray | None = None
+
+
+def odometry_age(now: float, stamps, arrivals, timeout: float) -> np.ndarray:
+    """Each robot's odometry age (s) at ``now``: from its ``stamps`` where it has one (a
+    zero stamp is none), at most ``timeout`` beyond its ``arrivals`` (a robot whose clock is
+    off does not look older than that), else from its arrival; NaN before the first."""
+    stamps = np.asarray(stamps, dtype=float)
+    arrived = np.maximum(now - np.asarray(arrivals, dtype=float), 0.0)
+    stamped = np.isfinite(stamps) & (stamps > 0)
+    by_stamp = np.clip(now - np.where(stamped, stamps, now), 0.0, arrived + timeout)
+    return np.where(stamped, by_stamp, arrived)

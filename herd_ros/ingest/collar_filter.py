@@ -647,8 +647,7 @@ class CollarFilter:
         else:
             if d2 > self._gate and self.left_place is None:
                 # taken by the walk component alone: a move the track may have to undo
-                self.left_place = LeftPlace(self.t, self.x[:2].copy(), self.P[:2, :2].copy(),
-                                            int(p.reacquire_fixes), for_chain=False)
+                self.left_place = self._place_here(for_chain=False)
             self._mixture_update(z, r, x_pred, P_pred, P_pred[:2, :2] + r, d2, *walk)
         self.t = stamp
         self.candidates.clear()
@@ -769,13 +768,17 @@ class CollarFilter:
                 return FixResult(True, 'reinitialised', 'back at the place the track left: '
                                  'the track returned to it', d2)
             return self._reject(reason, detail, d2)
-        self.left_place = None if chain.jump else LeftPlace(
-            self.t, self.x[:2].copy(), self.P[:2, :2].copy(), int(self.params.reacquire_fixes))
+        self.left_place = None if chain.jump else self._place_here(for_chain=True)
         self._adopt(chain)
         self.counters['reinitialised'] += 1
         kind = 'beyond reach or far outside its range' if chain.jump else 'outside the gate'
         return FixResult(True, 'reinitialised', f'{need} consistent fixes {kind}: the track '
                          f'moved to them', d2)
+
+    def _place_here(self, for_chain: bool) -> LeftPlace:
+        """Where the track is now, kept as the place it leaves (:class:`LeftPlace`)."""
+        return LeftPlace(self.t, self.x[:2].copy(), self.P[:2, :2].copy(),
+                         int(self.params.reacquire_fixes), for_chain)
 
     def _return_to_left(self, stamp, z, r) -> bool:
         """A fix the track refuses that lies inside the gate of the place it left (that

@@ -333,6 +333,21 @@ def _held(left, i):
 
 
 @_jit
+def _keep_left(left, i, t, x, P, reacquire, for_chain):
+    """Keep the place collar i's track is at (its state's time, position and position
+    covariance) as the place it leaves, for ``reacquire`` accepted fixes; ``for_chain``
+    1.0 when it leaves for a reachable chain, 0.0 for a fix its walk component took."""
+    left[i, 0] = t[i]
+    left[i, 1] = x[i, 0]
+    left[i, 2] = x[i, 1]
+    left[i, 3] = P[i, 0, 0]
+    left[i, 4] = P[i, 1, 0]
+    left[i, 5] = P[i, 1, 1]
+    left[i, 6] = reacquire
+    left[i, 7] = for_chain
+
+
+@_jit
 def _return_to_left(i, s, z0, z1, r, left, accel_std, velocity_tau, gate, t, x, P, xp, Pp):
     """CollarFilter._return_to_left: a refused fix inside the gate of the place the track
     left goes back there at once (True; the state updated with the fix)."""
@@ -499,14 +514,7 @@ def process_batch(collar, stamp, east, north, status, R,
                     if chain < 0 and walk_accel > 0.0:   # accepted: mixture update
                         if d2 > gate and not math.isfinite(left[i, 0]):
                             # taken by the walk component alone: a move it may undo
-                            left[i, 0] = t[i]
-                            left[i, 1] = xi[0]
-                            left[i, 2] = xi[1]
-                            left[i, 3] = Pi[0, 0]
-                            left[i, 4] = Pi[1, 0]
-                            left[i, 5] = Pi[1, 1]
-                            left[i, 6] = reacquire
-                            left[i, 7] = 0.0
+                            _keep_left(left, i, t, x, P, reacquire, 0.0)
                         _update(xp, Pp, z0, z1, r)
                         _update(xw, Pw, z0, z1, rw)
                         lw = (math.log(walk_prob) - 0.5 * math.log(detw) - 0.5 * d2w) - (
@@ -548,14 +556,7 @@ def process_batch(collar, stamp, east, north, status, R,
                         if cand_jump[i, chain]:
                             left[i, 0] = np.nan
                         else:                 # keep the place the track leaves
-                            left[i, 0] = t[i]
-                            left[i, 1] = x[i, 0]
-                            left[i, 2] = x[i, 1]
-                            left[i, 3] = P[i, 0, 0]
-                            left[i, 4] = P[i, 1, 0]
-                            left[i, 5] = P[i, 1, 1]
-                            left[i, 6] = reacquire
-                            left[i, 7] = 1.0
+                            _keep_left(left, i, t, x, P, reacquire, 1.0)
                         _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
                                cand_z, cand_r, accel_std[i], velocity_tau[i], v0)
                         counters[i, C_REINIT] += 1
@@ -718,7 +719,7 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber,
                 comp[j, 2, ax] = ap - kp * ap
                 comp[j, 3, ax] = bp - kp * bp
                 comp[j, 4, ax] = cp - kv * bp
-            if j == 0:
+            if distance and j == 0:
                 dsum += math.sqrt(y2)
             if not use_walk and nis > huber:
                 nis = 2.0 * math.sqrt(huber * nis) - huber

@@ -242,7 +242,7 @@ def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
             cp = g * g * c + qvv
             S = ap + rk + extra
             y = zk - (p + f * v)
-            if j == 0:                          # the own model: what the track says
+            if distance and j == 0:             # the own model: what the track says
                 dsum += np.where(live, np.sqrt((y * y).sum(axis=-1)), 0.0)
             nis = y * y / S
             if walk is None:

@@ -29,7 +29,7 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 from herd_ros.control import kinematics as kin
-from herd_ros.control.fleet_observation import FleetObservation
+from herd_ros.control.fleet_observation import FleetObservation, odometry_age
 from herd_ros.control.fleet_start import StartGate
 from herd_ros.control.safety import Fence, Obstacles, safe_velocity, stale_mask
 from herd_ros.errors import HerdInputError
@@ -137,16 +137,6 @@ class Controller(Node):
         self.odom_time[k] = self.now_s()
         self.odom_stamp[k] = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
-    def odometry_age(self, now: float) -> np.ndarray:
-        """Each robot's odometry age (s): from its stamp where it has one (a zero stamp is
-        none), at most ``odom_timeout_s`` beyond its arrival (a robot whose clock is off
-        does not look older than that), else from its arrival; NaN before the first."""
-        arrived = now - self.odom_time
-        stamped = np.isfinite(self.odom_stamp) & (self.odom_stamp > 0)
-        by_stamp = np.clip(now - np.where(stamped, self.odom_stamp, now), 0.0,
-                           np.maximum(arrived, 0.0) + self.odom_timeout_s)
-        return np.where(stamped, by_stamp, np.maximum(arrived, 0.0))
-
     def tick(self):
         """One control period: the mode's velocities through the safety layer to Twists."""
         now = self.now_s()
@@ -163,7 +153,9 @@ class Controller(Node):
         last = np.where(self.owned[:, None], self.last_command, self.velocity)
         state = FleetObservation(list(self.all_robots), self.owned, self.positions.copy(),
                                  self.yaw.copy(), self.velocity.copy(), active, last,
-                                 self.period, now, pose_age=self.odometry_age(now))
+                                 self.period, now,
+                                 odometry_age(now, self.odom_stamp, self.odom_time,
+                                              self.odom_timeout_s))
         desired = np.asarray(self.policy.command(state), dtype=float).reshape(-1, 2)
         go = self.owned & active & np.isfinite(desired).all(-1)
         world = np.zeros_like(desired)

@@ -476,8 +476,7 @@ class HerdModelPolicy:
                 else None
             lag = loop_lag(state.pose_age, state.time - self._last_escort
                            if self._last_escort is not None else None)
-            tau = np.maximum(self._tick_step or st.dt, lag)           # (E2)
-            hold = escort_velocity(state.positions, animals, tau, u,
-                                   ahead=state.time - self._last_tick[0])
+            hold = escort_velocity(state.positions, animals, self._tick_step or st.dt, u,
+                                   ahead=state.time - self._last_tick[0], lag=lag)
             self._last_escort = state.time
         return np.where(wait[:, None], hold, command)
