@@ -28,8 +28,8 @@ def run_demo(tmp_path, ros_env, console_script, seeds, *extra, wanted=None):
 
 
 def check_home(out):
-    """From the recorded poses: the herd started far from the goal and ended inside it,
-    within the budget, and the herder travelled."""
+    """From the recorded poses: the herd started far from the goal, was all inside it within
+    the budget and no later than the run says, stayed there, and the herder travelled."""
     herd = pd.read_csv(out / 'herding_herd.csv')
     robots = pd.read_csv(out / 'herding_robots.csv')
     times = np.sort(herd['time'].unique())
@@ -38,13 +38,21 @@ def check_home(out):
     goal = np.asarray(GOAL)
     assert len(first) == len(last) == 14
     assert (np.hypot(*(first - goal).T) > GOAL_RADIUS + 50).all()     # started far away
-    assert (np.hypot(*(last - goal).T) <= GOAL_RADIUS).all()          # ended inside
-    assert times[-1] < budget_s(14)
+    # success is an instant (issue 27; the benchmark's rule): some recorded snapshot has
+    # every animal inside, within the budget; the run goes on 5 s after it, while the
+    # animals graze and one may step just over the rim (16.3 m of 15 in one CI run), so
+    # the last snapshot is asked only for the herd's centre to be inside
+    herd['in'] = np.hypot(herd['x'] - goal[0], herd['y'] - goal[1]) <= GOAL_RADIUS
+    per_time = herd.groupby('time')['in'].agg(['all', 'size'])
+    home = per_time.index[per_time['all'] & (per_time['size'] == 14)]
+    assert len(home) and home[0] < budget_s(14)
+    assert np.hypot(*(last.mean(axis=0) - goal)) <= GOAL_RADIUS
     # the herder did the work: it travelled, and the animals moved as far
     r = robots.sort_values('time')[['x', 'y']].to_numpy()
     assert np.hypot(*np.diff(r, axis=0).T).sum() > 100
     summary = json.loads((out / 'summary.json').read_text())
     assert summary['success'] and summary['marker_messages'] > 0
+    assert home[0] <= summary['time_s'] + 1e-6
     assert (out / 'herding.png').stat().st_size > 10_000
     return summary
 
