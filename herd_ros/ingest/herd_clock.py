@@ -16,7 +16,7 @@ prediction would be).
 Two drivers give the same snapshots for the same fixes:
 
 * offline, :func:`resample_timelines`: every agent's whole timeline at once, vectorized over
-  the ticks;
+  the ticks and the agents (:func:`states_at`);
 * streaming, :class:`HerdClock`: fed one fix at a time (after its filter has processed it),
   it emits the snapshot of tick t once every agent has reported (any fix, accepted or not)
   with a stamp ≥ t, or has been silent for more than ``stale_after`` seconds of herd data
@@ -104,26 +104,62 @@ class StateTimeline:
         """Causal estimates at ``ticks`` (T,): (x (T, 4), P (T, 4, 4), stale (T,),
         initialised (T,)). Ticks before the first state give NaN, stale and not initialised.
         """
-        ticks = np.asarray(ticks, dtype=float)
-        idx = np.searchsorted(self.t, ticks, side='right') - 1
-        initialised = idx >= 0
-        safe = np.where(initialised, idx, 0)
-        if len(self.t) == 0:
-            n = len(ticks)
-            return (np.full((n, 4), np.nan), np.full((n, 4, 4), np.nan),
-                    np.ones(n, bool), np.zeros(n, bool))
-        tau = ticks - self.t[safe]
-        if self.motion is None:
-            x, P = predict_states(self.x[safe], self.P[safe], tau, self.accel_std,
-                                  self.velocity_tau)
-        else:
-            x, P = predict_states(self.x[safe], self.P[safe], tau, self.motion[safe, 0],
-                                  self.motion[safe, 1])
-        x[~initialised] = np.nan
-        P[~initialised] = np.nan
-        stale = ~initialised | (tau > self.stale_after)
-        x[stale] = np.nan
-        return x, P, stale, initialised
+        x, P, stale, init = states_at([self], ticks)
+        return x[0], P[0], stale[0], init[0]
+
+
+def states_at(timelines, ticks):
+    """:meth:`StateTimeline.at` of several timelines at the same ``ticks`` (T,): (x (N, T, 4),
+    P (N, T, 4, 4), stale (N, T), initialised (N, T)). Each tick takes the timeline's state
+    after its last accepted fix at or before it, predicted to the tick with that state's
+    motion model; the predictions of every timeline are one compiled call over all of them,
+    split over the collar threads (:mod:`~herd_ros.ingest.collar_threads`: each state's
+    prediction is its own, so the split never changes a number)."""
+    from herd_ros.ingest import collar_threads
+    ticks = np.asarray(ticks, dtype=float)
+    N, T = len(timelines), len(ticks)
+    x = np.full((N, T, 4), np.nan)
+    P = np.full((N, T, 4, 4), np.nan)
+    stale = np.ones((N, T), bool)
+    sizes = np.array([len(tl.t) for tl in timelines], dtype=np.int64)
+    idx = np.full((N, T), -1, dtype=np.int64)
+    for i, tl in enumerate(timelines):
+        if sizes[i]:
+            idx[i] = np.searchsorted(tl.t, ticks, side='right') - 1
+    init = idx >= 0
+    if not init.any():
+        return x, P, stale, init
+    offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    g = (idx + offsets[:, None])[init]                 # each (agent, tick)'s state
+    t_all = _joined([np.asarray(tl.t, dtype=float) for tl in timelines])
+    tau = np.broadcast_to(ticks, (N, T))[init] - t_all[g]
+    x0 = _joined([np.asarray(tl.x, dtype=float).reshape(-1, 4) for tl in timelines])[g]
+    P0 = _joined([np.asarray(tl.P, dtype=float).reshape(-1, 4, 4) for tl in timelines])[g]
+    motion = _joined([
+        np.column_stack([np.full(len(tl.t), float(tl.accel_std)),
+                         np.full(len(tl.t), float(tl.velocity_tau))])
+        if tl.motion is None else np.asarray(tl.motion, dtype=float).reshape(-1, 2)
+        for tl in timelines])[g]
+    xs, Ps = np.empty_like(x0), np.empty_like(P0)
+
+    def part(sl):
+        def run():
+            xs[sl], Ps[sl] = predict_states(x0[sl], P0[sl], tau[sl], motion[sl, 0],
+                                            motion[sl, 1])
+        return run
+
+    collar_threads.run(part(sl) for sl in collar_threads.split(np.ones(len(g))))
+    x[init], P[init] = xs, Ps
+    late = tau > np.broadcast_to(np.array([float(tl.stale_after) for tl in timelines])[:, None],
+                                 (N, T))[init]
+    stale[init] = late
+    x[stale] = np.nan
+    return x, P, stale, init
+
+
+def _joined(arrays: list) -> np.ndarray:
+    """The arrays one after the other (the one array itself, not a copy, when alone)."""
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
 
 
 class TimelineRecorder:
@@ -181,16 +217,11 @@ def resample_timelines(timelines: dict[str, StateTimeline], ticks, agents=None
     """
     agents = list(timelines) if agents is None else list(agents)
     ticks = np.asarray(ticks, dtype=float)
-    T, N = len(ticks), len(agents)
-    x = np.full((T, N, 4), np.nan)
-    P = np.full((T, N, 4, 4), np.nan)
-    stale = np.ones((T, N), bool)
-    init = np.zeros((T, N), bool)
-    for i, agent in enumerate(agents):
-        x[:, i], P[:, i], stale[:, i], init[:, i] = timelines[agent].at(ticks)
+    x, P, stale, init = states_at([timelines[a] for a in agents], ticks)
+    x, P = x.swapaxes(0, 1), np.ascontiguousarray(P.swapaxes(0, 1))
     return HerdTrajectory(ticks, agents, x[..., :2].copy(), meta={
         'velocities': x[..., 2:].copy(), 'position_cov': P[..., :2, :2].copy(),
-        'state_cov': P, 'stale': stale, 'initialised': init})
+        'state_cov': P, 'stale': stale.T.copy(), 'initialised': init.T.copy()})
 
 
 @dataclass

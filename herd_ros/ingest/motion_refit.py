@@ -301,12 +301,10 @@ def fix_variance(cov_type, cov_ee, cov_nn, floor: float) -> np.ndarray:
 
 def apply_fit(bank, i: int, fit: MotionFit):
     """Collar ``i`` of ``bank`` moves by ``fit`` from its next fix on: the filter
-    parameters of :func:`herd_ros.ingest.pipeline.with_motion` (the reference filter's),
-    its fix std and floor included."""
-    from herd_ros.ingest.pipeline import with_motion
-    p = with_motion(bank.params, fit)
-    bank.set_motion(i, p.accel_std, p.velocity_tau, p.default_position_std,
-                    p.position_std_floor)
+    parameters :func:`herd_ros.ingest.pipeline.with_motion` gives the reference filter
+    (:func:`~herd_ros.ingest.pipeline.fitted_motion`), its fix std and floor included."""
+    from herd_ros.ingest.pipeline import fitted_motion
+    bank.set_motion(i, *fitted_motion(bank.params, fit))
 
 
 def split_points(collar, due) -> list[int]:

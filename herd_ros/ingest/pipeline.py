@@ -261,15 +261,25 @@ def with_motion(params: FilterParams, fit) -> FilterParams:
     if fit is None:
         return params
     import dataclasses
+    accel_std, velocity_tau, std, floor = fitted_motion(params, fit)
+    walk = params.walk or (params.accel_std, params.velocity_tau)
+    return dataclasses.replace(params, accel_std=accel_std, velocity_tau=velocity_tau,
+                               walk_accel_std=walk[0], walk_velocity_tau=walk[1],
+                               default_position_std=std, position_std_floor=floor)
+
+
+def fitted_motion(params: FilterParams, fit) -> tuple[float, float, float, float]:
+    """What a collar filtered with ``params`` takes from ``fit`` (a
+    :class:`~herd_ros.ingest.motion_fit.MotionFit`): (σ_a, τ_v, the std of its fixes without
+    a covariance, the smallest std of any fix) — the fields :func:`with_motion` sets, without
+    building the parameters (a refit sets them on a bank's collars)."""
+    if not np.isfinite(fit.position_std):
+        return (fit.accel_std, fit.velocity_tau, params.default_position_std,
+                params.position_std_floor)
     # a fitted std is the data's word: the floor (a guard against receivers that claim
     # too much) does not raise it
-    extra = ({'default_position_std': fit.position_std,
-              'position_std_floor': min(fit.position_std, params.position_std_floor)}
-             if np.isfinite(fit.position_std) else {})
-    walk = params.walk or (params.accel_std, params.velocity_tau)
-    return dataclasses.replace(params, accel_std=fit.accel_std,
-                               velocity_tau=fit.velocity_tau, walk_accel_std=walk[0],
-                               walk_velocity_tau=walk[1], **extra)
+    return (fit.accel_std, fit.velocity_tau, fit.position_std,
+            min(fit.position_std, params.position_std_floor))
 
 
 #: the filter implementations of :func:`run_filters`
