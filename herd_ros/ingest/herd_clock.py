@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from herd_ros.ingest import collar_bank
+from herd_ros.ingest import collar_bank, collar_threads
 from herd_ros.ingest.collar_filter import CollarFilter, predict_state
 from herd_ros.trajectory import HerdTrajectory
 
@@ -115,7 +115,6 @@ def states_at(timelines, ticks):
     motion model; the predictions of every timeline are one compiled call over all of them,
     split over the collar threads (:mod:`~herd_ros.ingest.collar_threads`: each state's
     prediction is its own, so the split never changes a number)."""
-    from herd_ros.ingest import collar_threads
     ticks = np.asarray(ticks, dtype=float)
     N, T = len(timelines), len(ticks)
     x = np.full((N, T, 4), np.nan)
@@ -150,9 +149,8 @@ def states_at(timelines, ticks):
 
     collar_threads.run(part(sl) for sl in collar_threads.split(np.ones(len(g))))
     x[init], P[init] = xs, Ps
-    late = tau > np.broadcast_to(np.array([float(tl.stale_after) for tl in timelines])[:, None],
-                                 (N, T))[init]
-    stale[init] = late
+    stale_after = np.array([float(tl.stale_after) for tl in timelines])
+    stale[init] = tau > np.broadcast_to(stale_after[:, None], (N, T))[init]
     x[stale] = np.nan
     return x, P, stale, init
 
