@@ -3,6 +3,7 @@ restarts, checked against hand-built streams."""
 import math
 
 import numpy as np
+import pytest
 
 from herd_ros.ingest.collar_filter import STATUS_NO_FIX, FilterParams
 from herd_ros.ingest.fix_stream import FixStream, clock_jumps, collar_frames, future_stamps
@@ -148,15 +149,19 @@ def pushed(s, collars, fx, sizes, collect_every=0):
     return states, snaps
 
 
-def test_refits_in_the_background_give_the_synchronous_states_and_snapshots():
+@pytest.mark.parametrize('lag', [0.0, 60.0, 400.0])
+def test_refits_in_the_background_give_the_synchronous_states_and_snapshots(lag):
     # the synchronous stream is the offline path's (test_gps_ingest_node); in the background
     # every fix must still be filtered by the model its collar had at that fix offline
     collars, fx = wandering_collars(5, 120)
-    ref_states, ref_snaps = pushed(fitted_stream(5), collars, fx, [7])
+    ref = fitted_stream(5)
+    ref.refitter.config.lag_s = lag
+    ref_states, ref_snaps = pushed(ref, collars, fx, [7])
     assert len(ref_states) > 500 and len(ref_snaps) > 100
     for sizes, every, chunk in (([7, 1, 30, 3], 3, 256), ([1], 1, 256), ([400], 0, 256),
                                 ([400], 0, 1)):
         s = fitted_stream(5, refit_in_background=True)
+        s.refitter.config.lag_s = lag
         s.background.max_collars = chunk        # 1: the refits due together, one by one
         states, snaps = pushed(s, collars, fx, sizes, every)
         assert states == ref_states, (sizes, chunk)
@@ -166,7 +171,10 @@ def test_refits_in_the_background_give_the_synchronous_states_and_snapshots():
                    for (_, a), (_, b) in zip(snaps, ref_snaps))
 
 
-def test_a_refit_in_the_background_holds_only_its_own_collars_fixes(monkeypatch):
+def test_a_refit_in_the_background_holds_only_the_fixes_that_need_its_model(monkeypatch):
+    """A refit takes over ``lag_s`` of data time after its point: meanwhile its collar's
+    fixes are filtered by the old model; from its first fix stamped that late on, its
+    fixes wait for the refit; the other collar's are filtered."""
     import threading
 
     from herd_ros.ingest.motion_refit import RefitJob
@@ -184,24 +192,27 @@ def test_a_refit_in_the_background_holds_only_its_own_collars_fixes(monkeypatch)
     keep = (collars == 0) | (np.cumsum(collars == 1) % 2 == 0)   # collar 1 at half the rate
     collars, fx = collars[keep], take_fixes(fx, keep)
     s = fitted_stream(2, refit_in_background=True)
+    s.refitter.config.lag_s = lag = 60.0      # a large herd's (6 ms per collar)
     # the first refit is due after a collar's 20th fix: collar a reaches it first, b later
     twentieth = [int(np.flatnonzero(np.cumsum(collars == i) == 20)[0]) for i in (0, 1)]
     a = int(np.argmin(twentieth))
     b = 1 - a
     s.push(collars[:twentieth[a] + 1], take_fixes(fx, np.arange(twentieth[a] + 1)), 100.0)
     assert started.wait(30) and s.background.pending[a] and not s.background.pending[b]
-    # the next fixes, up to b's own refit point: a's wait, b's are filtered
+    # the next fixes, up to b's own refit point
     nxt = np.arange(twentieth[a] + 1, twentieth[b])
     out = s.push(collars[nxt], take_fixes(fx, nxt), 101.0)
     own = collars[nxt] == a
+    needs = own & (fx.stamp[nxt] >= fx.stamp[twentieth[a]] + lag)   # a's new model's fixes
+    assert needs.any() and (own & ~needs).any() and (~own).any()
     got = np.concatenate([idx for idx, *_ in out.odometry])
-    assert own.any() and (~own).any()
-    assert s.fixes_held_for_refits == own.sum()
-    assert a not in got and (got == b).sum() == (~own).sum()     # b: every fix accepted
+    assert s.fixes_held_for_refits == needs.sum()
+    assert (got == a).sum() == (own & ~needs).sum()          # before the take-over: filtered
+    assert (got == b).sum() == (~own).sum()                   # b: every fix accepted
     assert s.clock.waiting[a] and not s.clock.waiting[b]
-    held_from = fx.stamp[nxt][own].min()
+    held_from = fx.stamp[nxt][needs].min()
     assert all(sn.time <= held_from for sn in out.snapshots)   # no tick past a waiting fix
     release.set()
     rest = s.collect(102.0, wait=True)
     assert s.fixes_held_for_refits == 0 and not s.clock.waiting.any()
-    assert (np.concatenate([idx for idx, *_ in rest.odometry]) == a).sum() == own.sum()
+    assert (np.concatenate([idx for idx, *_ in rest.odometry]) == a).sum() == needs.sum()

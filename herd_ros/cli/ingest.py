@@ -49,6 +49,10 @@ def add_filter_arguments(parser):
                    help='white-noise acceleration std (m/s^2) of the walk, the broad '
                         'component of a fitted collar\'s graze/walk mixture and its prior '
                         'until the first fit; default 0.1 (a walking animal, ~1 m/s)')
+    g.add_argument('--refit-lag', type=float, default=None, metavar='S',
+                   help='with the fitted motion model: data time (s) from a collar\'s refit '
+                        'point to the first fix its new model filters (as the node\'s '
+                        'refit_lag_s); default: 6 ms per collar (60 s for 10 000)')
     g.add_argument('--walk-probability', type=float, default=0.05,
                    help='prior probability per fix that a fitted collar walks (moves by the '
                         'broad model above rather than its own)')
@@ -73,7 +77,7 @@ def filter_kwargs(args) -> dict:
                 default_position_std=args.default_position_std,
                 position_std_floor=args.position_std_floor,
                 gate_probability=args.gate_probability, max_speed=args.max_speed,
-                stale_after=args.stale_after)
+                stale_after=args.stale_after, refit_lag_s=args.refit_lag)
 
 
 def add_arguments(parser):

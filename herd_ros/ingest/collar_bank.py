@@ -126,6 +126,12 @@ class FixBatch:
         return FixBatch(self.outcome[sl], self.mahalanobis2[sl], self.x[sl], self.P[sl],
                         self.segment[sl])
 
+    def put(self, at, part: FixBatch):
+        """Write ``part`` into rows ``at`` (indices) of this batch."""
+        for name in ('outcome', 'mahalanobis2', 'x', 'P', 'segment'):
+            if len(getattr(self, name)):
+                getattr(self, name)[at] = getattr(part, name)
+
 
 class CollarBank:
     """The filters of ``n`` collars (indices 0..n-1), driven by batches of fixes.

@@ -30,6 +30,13 @@ MIN_WORK = 5_000
 
 _pool: ThreadPoolExecutor | None = None
 _pool_lock = threading.Lock()
+_local = threading.local()
+
+
+def in_this_thread_only():
+    """From now on the collar kernels called from this thread run in it alone (no split):
+    a background thread that must leave the other cores to the fix path."""
+    _local.alone = True
 
 
 def thread_count() -> int:
@@ -59,6 +66,8 @@ def split(work, parts: int | None = None) -> list[slice]:
     n = len(work)
     total = float(work.sum())
     if n <= 1 or total < MIN_WORK:                  # before thread_count(): a hot path
+        return [slice(0, n)]
+    if getattr(_local, 'alone', False):
         return [slice(0, n)]
     parts = min(thread_count() if parts is None else int(parts), n)
     if parts <= 1:

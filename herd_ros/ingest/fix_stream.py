@@ -38,8 +38,8 @@ from herd_ros.ingest.collar_bank import OUTCOMES, CollarBank, FixBatch
 from herd_ros.ingest.collar_filter import COUNTERS, STATUS_NO_FIX, FilterParams
 from herd_ros.ingest.geodesy import geodetic_to_enu
 from herd_ros.ingest.herd_clock import BatchHerdClock
-from herd_ros.ingest.motion_refit import (BackgroundRefits, MotionRefitter, after_first_due,
-                                          fix_variance, process_observed, process_with_refits)
+from herd_ros.ingest.motion_refit import (BackgroundRefits, MotionRefitter, fix_variance,
+                                          process_deferring, process_with_refits)
 from herd_ros.ingest.pipeline import choose_datum, with_walk
 from herd_ros.ingest.stamp_guards import clock_jumps, future_stamps
 from herd_ros.io.cdr import NavSatFixes, concat_fixes, no_fixes, take_fixes
@@ -216,7 +216,7 @@ class FixStream:
     # -- refits in the background -------------------------------------------------------
     def collect(self, now: float, wait: bool = False) -> StreamOutput:
         """The refits finished since the last call (every one with ``wait``: the end of
-        data) put in the bank, and the fixes that waited for them filtered."""
+        data) ready to take over, and the fixes that waited for them filtered."""
         out = StreamOutput()
         refits = self.background
         if refits is None:
@@ -227,16 +227,12 @@ class FixStream:
             if refits.failures > failures:
                 out.log.append(('warn', f'a motion refit failed ({refits.last_failure}): '
                                         f'its collars keep their models'))
-            if not freed or not self._held:
+            if not self._held or not (freed or wait):
                 break
             held = _concat_rows(self._held)
             self._held = []
-            free = ~refits.pending[held[0]]
-            if not free.all():
-                self._held.append(_take_rows(held, ~free))
-            if free.any():
-                self._filter_deferring(_take_rows(held, free), out, now)
-            if not wait:
+            self._filter_deferring(held, out, now)
+            if not wait or not (self._held or refits.busy):
                 break
         return out
 
@@ -251,29 +247,27 @@ class FixStream:
         return sum(len(r[0]) for r in self._held)
 
     def _filter_deferring(self, rows, out: StreamOutput, now):
-        """:meth:`_filter` with the refits in the background: the fixes of a collar whose
-        refit runs, and those after a refit point of their collar, wait for the refit
-        (:meth:`collect`); the others are filtered now."""
-        refits = self.background
-        while len(rows[0]):
-            hold = refits.pending[rows[0]]
-            go = np.flatnonzero(~hold)
-            due = self.refitter.due(rows[0][go])
-            later = after_first_due(rows[0][go], due)
-            hold[go[later]] = True
-            go, due = go[~later], due[~later]
-            self.clock.waiting[rows[0][hold]] = True    # not silent: their fixes are here
-            if len(go):
-                part = _take_rows(rows, go)
-                batch, motion = FixBatch.empty(len(go)), np.empty((len(go), 2))
-                process_observed(self.bank, self.refitter, *part, batch, motion)
-                self._outcomes(part[0], part[1], batch, motion, out, now)
-                refits.submit(np.unique(part[0][due]))
-            rows = _take_rows(rows, hold)
-            wait = refits.pending[rows[0]]
-            if wait.any():
-                self._held.append(_take_rows(rows, wait))
-                rows = _take_rows(rows, ~wait)
+        """:meth:`_filter` with the refits in the background
+        (:func:`~herd_ros.ingest.motion_refit.process_deferring`): a fix that needs a model
+        still being fitted waits for it (:meth:`collect`), with its collar's later fixes;
+        the others are filtered now."""
+        behind = np.zeros(len(self.agents), bool)       # collars with fixes waiting already
+        for r in self._held:
+            behind[r[0]] = True
+        wait = behind[rows[0]]
+        if wait.any():
+            self._held.append(_take_rows(rows, wait))
+            rows = _take_rows(rows, ~wait)
+        self.clock.waiting[:] = behind                  # not silent: their fixes are here
+        if len(rows[0]):
+            batch, motion, held = process_deferring(self.bank, self.refitter,
+                                                    self.background, rows)
+            if held.any():
+                self._held.append(_take_rows(rows, held))
+                self.clock.waiting[rows[0][held]] = True
+            done = np.flatnonzero(~held)
+            self._outcomes(rows[0][done], rows[1][done], _batch_rows(batch, done),
+                           motion[done], out, now)
         self.clock.waiting[:] = False
         for r in self._held:
             self.clock.waiting[r[0]] = True
@@ -386,6 +380,12 @@ class FixStream:
                 'fixes_waiting_for_datum': self.fixes_waiting_for_datum,
                 'datum': ('waiting for the first valid fix' if self.datum is None
                           else ', '.join(f'{v:.9f}' for v in self.datum))}
+
+
+def _batch_rows(batch: FixBatch, keep) -> FixBatch:
+    """The rows ``keep`` (indices) of a filtered batch."""
+    return FixBatch(batch.outcome[keep], batch.mahalanobis2[keep], batch.x[keep],
+                    batch.P[keep], batch.segment[keep])
 
 
 def _take_rows(rows: tuple, keep) -> tuple:

@@ -456,9 +456,17 @@ def moment_start(t, z, r, n, floor2):
     y = np.where(valid, 0.25 * (np.diff(z, axis=1) ** 2).sum(axis=2), 0.0)  # per axis, halved
     x = np.where(valid, dt, 0.0)
     w = valid.astype(float)
-    # minimise Σ (D x + 2 s − y)²: [[Σx², 2Σx], [2Σx, 4Σ1]] (D, s) = (Σxy, 2Σy)
-    sxx, sx, s1 = (x * x).sum(1), x.sum(1), w.sum(1)
-    sxy, sy = (x * y).sum(1), y.sum(1)
+    # minimise Σ (D x + 2 s − y)²: [[Σx², 2Σx], [2Σx, 4Σ1]] (D, s) = (Σxy, 2Σy); each sum
+    # taken in order over the collar's own pairs, so that it does not depend on how far
+    # its row is padded (numpy's unrolled sums group the terms by the row's length): a
+    # collar's fit is the same whichever collars it is fitted with
+    last = np.maximum(n - 2, 0)
+    rows = np.arange(N)
+
+    def total(a):
+        return np.cumsum(a, axis=1)[rows, last] if a.shape[1] else np.zeros(N)
+    sxx, sx, s1 = total(x * x), total(x), total(w)
+    sxy, sy = total(x * y), total(y)
     det = 4.0 * (sxx * s1 - sx * sx)
     with np.errstate(invalid='ignore', divide='ignore'):
         D = (4.0 * s1 * sxy - 4.0 * sx * sy) / det

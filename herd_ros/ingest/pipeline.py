@@ -210,19 +210,24 @@ def fixes_enu(fixes: pd.DataFrame, datum) -> tuple[np.ndarray, np.ndarray]:
 PLANAR_STD_FLOOR = 0.02
 
 
-def refit_config(params: FilterParams, window: int = 200, planar: bool = False):
+def refit_config(params: FilterParams, window: int = 200, planar: bool = False,
+                 lag_s: float | None = None, collars: int = 1):
     """The :class:`~herd_ros.ingest.motion_refit.RefitConfig` of a filter whose motion
     model is fitted per collar: ``params``' walk component (its configured model if it has
     none); the fitted fix std floored at ``position_std_floor`` (GPS) or
-    :data:`PLANAR_STD_FLOOR` (planar fixes)."""
-    from herd_ros.ingest.motion_refit import RefitConfig
+    :data:`PLANAR_STD_FLOOR` (planar fixes); a new model filters from ``lag_s`` after its
+    refit point (None or negative: :func:`~herd_ros.ingest.motion_refit.refit_lag` of a
+    herd of ``collars``)."""
+    from herd_ros.ingest.motion_refit import RefitConfig, refit_lag
+    lag_s = refit_lag(collars, lag_s)
     walk = params.walk or (params.accel_std, params.velocity_tau)
     floor = min(PLANAR_STD_FLOOR, params.position_std_floor) if planar \
         else params.position_std_floor
     walk_std = (params.walk_position_std if params.walk_position_std is not None
                 else params.default_position_std)
     return RefitConfig(window=window, walk=(walk[0], walk[1], params.walk_probability,
-                                            walk_std ** 2), std_floor=floor)
+                                            walk_std ** 2), std_floor=floor,
+                       lag_s=float(lag_s))
 
 
 #: velocity persistence (s) of the prior random walk of a collar not yet fitted
@@ -351,6 +356,11 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
         rec = TimelineRecorder(f)
         refitter = MotionRefitter(1, refit) if refit is not None else None
         for k in rows:
+            if refitter is not None:
+                # the models scheduled by this fix's stamp take over (motion_refit: lag_s)
+                queue = refitter.scheduled[0]
+                while queue and queue[0].apply_at <= t[k]:
+                    f.params = with_motion(params, queue.popleft().fit)
             res = f.update(t[k], e[k], n[k], status=status[k], position_covariance=cov[k],
                            position_covariance_type=cov_type[k])
             reasons[k] = res.reason
@@ -361,7 +371,7 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
                 if refitter.due([0], refitter.seen - 1)[0]:
                     fits = refitter.refit([0])
                     if fits:
-                        f.params = with_motion(params, fits[0])
+                        refitter.schedule(0, t[k], fits[0])
         collars[agent] = CollarSummary(f.params, dict(f.counters), f.t,
                                        refitter.fits[0] if refitter is not None else None)
         timelines[agent] = rec.timeline()
@@ -379,7 +389,7 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
     refits, in rounds: every collar's fixes up to its next refit point, then the next
     round (:func:`~herd_ros.ingest.motion_refit.process_with_refits` refits between)."""
     from herd_ros.ingest.motion_refit import (MotionRefitter, fix_variance,
-                                              process_with_refits, refit_due)
+                                              process_with_refits, refit_rounds)
     ids, uniques = pd.factorize(agent_col)
     codes = pd.Index(agents).get_indexer(uniques)[ids]
     rows = np.flatnonzero(codes >= 0)
@@ -393,11 +403,9 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
     refitter = None
     if refit is not None:
         refitter = MotionRefitter(len(agents), refit)
-        # rounds: a fix's round is how many refit points its collar passed before it
-        rank = np.arange(m) - np.repeat(bounds[:-1], np.diff(bounds))
-        points = np.flatnonzero(refit_due(np.arange(1, max(m, 1) + 1), refit.first,
-                                          refit.max_interval)) + 1
-        order = np.lexsort((np.arange(m), np.searchsorted(points, rank + 1, side='left')))
+        # rounds: a fix's round is how many events of its collar came before it, its refit
+        # points and the fixes at which their models take over
+        order = np.lexsort((np.arange(m), refit_rounds(t[rows], bounds, refit)))
         var = fix_variance(cov_type, cov[:, 0], cov[:, 4], params.position_std_floor)
         r = rows[order]
         part, mo = process_with_refits(bank, refitter, codes[r], t[r], e[r], n[r],
@@ -450,6 +458,7 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
                           engine: str = 'bank', motion_model: str = 'auto',
                           now: float | None = None,
                           max_stamp_ahead_s: float = MAX_STAMP_AHEAD_S,
+                          refit_lag_s: float | None = None,
                           **filter_params) -> HerdTrajectory:
     """Filtered, synchronized herd trajectory from a fixes table.
 
@@ -477,6 +486,9 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
             component, :func:`with_walk`); ``'fixed'``: one model for all,
             ``accel_std``/``velocity_tau``; ``'auto'`` (default): ``'fit'`` unless
             ``accel_std`` or ``velocity_tau`` is given.
+        refit_lag_s: with ``motion_model`` ``'fit'``, the data time (s) from a collar's
+            refit point to the first fix its new model filters (None: the herd's, as the
+            ``gps_ingest`` node's default, :func:`~herd_ros.ingest.motion_refit.refit_lag`).
         now, max_stamp_ahead_s: a fix stamped more than ``max_stamp_ahead_s`` after ``now``
             (default: the wall clock) is rejected (outcome ``future``, counter
             ``rejected_future``), as ``gps_ingest`` does (:mod:`~herd_ros.ingest
@@ -536,7 +548,8 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
     if motion_model == 'fit':
         params = with_walk(params, DEFAULT_WALK_ACCEL_STD if walk_accel_std is None
                            else walk_accel_std)
-        refit = refit_config(params, planar=is_planar(fixes))
+        refit = refit_config(params, planar=is_planar(fixes), lag_s=refit_lag_s,
+                             collars=fixes['agent'].nunique())
     enu = fixes_enu(fixes, datum)
     collars, timelines, reasons = run_filters(fixes, datum, params, agents, progress, engine,
                                               refit, enu)

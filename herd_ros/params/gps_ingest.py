@@ -96,6 +96,22 @@ PARAMS = {
         200,
         'accepted fixes per collar its motion model is fitted on',
         range=(20, 100000)),
+    'refit_lag_s': Param(
+        -1.0,
+        ("data time (s) from a collar's motion refit to the first fix its new model "
+         'filters; -1 = 6 ms per collar of agents'),
+        range=(-1.0, 86400.0),
+        doc=('\n'
+             "Data time (s) from a collar's motion refit (motion_model fit) to the "
+             'first fix its\n'
+             'new model filters; -1: 6 ms per collar of agents (0.1 s for 19 collars, '
+             '60 s for\n'
+             '10 000). The refits run in the background meanwhile; a fix that needs a '
+             'model not\n'
+             'yet fitted waits for it, so keep it longer than a refit of every collar '
+             'takes.\n'
+             '`herd-ros ingest --refit-lag` must match it for a file to give the live '
+             'track.')),
     'walk_probability': Param(
         0.05,
         ('prior probability per fix that a fitted collar walks (moves by the '
@@ -313,8 +329,9 @@ PARAMS = {
              'the per-fix cost small.\n'
              'With the batches, the motion refits (`motion_model` fit) run in a '
              'worker thread and\n'
-             'only the refitted collar\'s next fixes wait for its new model; '
-             'with 0 they run in line.')),
+             'a fix waits only for a new model it needs (refit_lag_s) that is not '
+             'fitted yet; with 0\n'
+             'they run in line.')),
     'max_stamp_ahead_s': Param(
         600.0,
         'a fix stamped more than this (s) ahead of the wall clock is rejected',
@@ -450,7 +467,8 @@ class GpsIngestConfig:
         self.refit = None
         if self.motion_model == 'fit':
             self.filter_params = with_walk(self.filter_params, p['walk_accel_std'])
-            self.refit = refit_config(self.filter_params, p['motion_window'])
+            self.refit = refit_config(self.filter_params, p['motion_window'],
+                                      lag_s=p['refit_lag_s'], collars=len(self.agents))
         self.frame_id = str(p['frame_id']).strip()
         if not self.frame_id:
             raise ParameterError('frame_id must be a non-empty frame name')
