@@ -408,12 +408,13 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
         order = np.lexsort((np.arange(m), refit_rounds(t[rows], bounds, refit)))
         var = fix_variance(cov_type, cov[:, 0], cov[:, 4], params.position_std_floor)
         r = rows[order]
-        part, mo = process_with_refits(bank, refitter, codes[r], t[r], e[r], n[r],
-                                       status[r], cov_type[r], cov[r], var[r])
-        for name in ('outcome', 'mahalanobis2', 'x', 'P', 'segment'):
-            getattr(out, name)[order] = getattr(part, name)
-        motion[order] = mo
+        out, motion = process_with_refits(bank, refitter, codes[r], t[r], e[r], n[r],
+                                          status[r], cov_type[r], cov[r], var[r])
+        # the results stay in round order: each collar's rows are read through `at`
+        at = np.empty(m, np.int64)
+        at[order] = np.arange(m)
     else:
+        at = None
         motion[:, 0] = params.accel_std
         motion[:, 1] = params.velocity_tau
         R = bank.measurement_covariances(cov_type[rows], cov[rows], codes[rows])
@@ -431,7 +432,7 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
                 bar.update(len(r))
         if bar is not None:
             bar.close()
-    outcome, xs, Ps, seg = out.outcome, out.x, out.P, out.segment
+    outcome = out.outcome if at is None else out.outcome[at]      # by collar, then time
     names = np.array(collar_bank.OUTCOMES, dtype=object)
     reasons = np.full(len(t), None, dtype=object)
     reasons[rows] = names[outcome]
@@ -439,13 +440,14 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
     collars, timelines = {}, {}
     for i, agent in enumerate(agents):
         sl = slice(bounds[i], bounds[i + 1])
-        keep = accepted[sl]
+        keep = np.flatnonzero(accepted[sl]) + bounds[i]     # the collar's accepted rows
+        take = keep if at is None else at[keep]             # ... in `out`
         fit = refitter.fits[i] if refitter is not None else None
         p = with_motion(params, fit)
-        timelines[agent] = StateTimeline(t[rows[sl]][keep], xs[sl][keep], Ps[sl][keep],
-                                         p.accel_std, p.stale_after, seg[sl][keep],
+        timelines[agent] = StateTimeline(t[rows[keep]], out.x[take], out.P[take],
+                                         p.accel_std, p.stale_after, out.segment[take],
                                          p.velocity_tau,
-                                         motion[sl][keep] if refit is not None else None,
+                                         motion[take] if refit is not None else None,
                                          walk_of(params))
         collars[agent] = CollarSummary(p, bank.counter_dict(i), float(bank.t[i]), fit)
     return collars, timelines, reasons
