@@ -216,3 +216,47 @@ def test_a_refit_in_the_background_holds_only_the_fixes_that_need_its_model(monk
     rest = s.collect(102.0, wait=True)
     assert s.fixes_held_for_refits == 0 and not s.clock.waiting.any()
     assert (np.concatenate([idx for idx, *_ in rest.odometry]) == a).sum() == needs.sum()
+
+
+def test_finished_refits_let_go_of_their_windows():
+    """A refit due while its collar's previous one is still queued starts from that one's
+    result (a link to it); once fitted, neither may keep the other, nor its windows, alive
+    (a chain of them would hold every window ever fitted: memory growing with the refits,
+    over days)."""
+    import gc
+    import threading
+    import weakref
+
+    from herd_ros.ingest.motion_refit import RefitJob
+    jobs, release = [], threading.Event()
+    run = RefitJob.run
+
+    def held(job):
+        jobs.append(weakref.ref(job))
+        assert release.wait(30)           # every refit waits: the later ones queue behind
+        return run(job)
+
+    RefitJob.run = held
+    try:
+        collars, fx = wandering_collars(3, 200)
+        s = fitted_stream(3, refit_in_background=True)
+        s.refitter.config.lag_s = 1e6      # no model needed yet: nothing waits for them
+        from herd_ros.io.cdr import take_fixes
+        s.push(collars, take_fixes(fx, np.arange(len(collars))), 100.0)
+        queued = [j for j in s.background._queued]
+        linked = [x for j in queued for x in j.start if type(x).__name__ == 'ScheduledFit']
+        assert linked                      # the later refits start from the earlier ones
+        del queued, linked
+        release.set()
+        s.collect(101.0, wait=True)
+    finally:
+        RefitJob.run = run
+        release.set()
+    gc.collect()
+    assert s.refitter.refits >= 3 * 3 and len(jobs) >= 3
+    alive = [r() for r in jobs if r() is not None]
+    # what may stay: the jobs of the models still waiting to take over, without windows
+    waiting = {id(e.job) for q in s.refitter.scheduled for e in q}
+    assert all(id(j) in waiting for j in alive), (len(alive), len(waiting))
+    assert all(j.windows is None and not any(type(x).__name__ == 'ScheduledFit'
+                                             for x in j.start) for j in alive)

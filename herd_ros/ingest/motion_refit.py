@@ -288,6 +288,9 @@ class RefitJob:
         self.result = fit_motion(self.windows, min_fixes=self.min_fixes,
                                  max_fixes=self.max_fixes, position_std_floor=self.std_floor,
                                  walk=self.walk, start=start)
+        # what a later refit may read of this one is its result and start: the windows and
+        # the links to earlier refits go (a chain of them would hold every window ever fitted)
+        self.windows, self.start = None, start
         return self.result
 
 
@@ -381,6 +384,7 @@ class BackgroundRefits:
             for entry, fit in zip(job.entries, fits):
                 entry.fit = fit if fit is not None and fit.model != 'prior' else None
                 entry.ready = True
+            job.entries = None
             np.subtract.at(self.pending, np.asarray(job.collars, np.int64), 1)
             freed += len(job.collars)
             self._running = None
