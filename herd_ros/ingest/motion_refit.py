@@ -215,17 +215,18 @@ class MotionRefitter:
         self.scheduled[collar].append(entry)
         return entry
 
-    def take_over(self, bank, collar: int, stamp: float) -> bool:
+    def take_over(self, collar: int, stamp: float, use) -> bool:
         """Before collar ``collar``'s fix stamped ``stamp``: every scheduled model due by
-        then takes over in ``bank``, oldest first. False (and nothing more done) at the
-        first one still being fitted: the fix must wait for it."""
+        then takes over, oldest first (``use(fit)``: a bank's :func:`apply_fit`, or the
+        reference filter's parameters). False (and nothing more done) at the first one
+        still being fitted: the fix must wait for it."""
         queue = self.scheduled[collar]
         while queue and queue[0].apply_at <= stamp:
             if not queue[0].ready:
                 return False
             entry = queue.popleft()
             if entry.fit is not None:
-                apply_fit(bank, collar, entry.fit)
+                use(entry.fit)
         return True
 
     def waiting_for_fit(self, collar: int, stamp: float) -> bool:
@@ -561,7 +562,8 @@ def _drive(bank, refitter: MotionRefitter, rows, refit_now, out: FixBatch, motio
     nxt, _ = _neighbours(collar)
 
     def take_over_at(c: int, q: int):
-        if not held[q] and not refitter.take_over(bank, c, float(stamp[q])):
+        if not held[q] and not refitter.take_over(
+                c, float(stamp[q]), lambda fit: apply_fit(bank, c, fit)):
             held[(collar == c) & (np.arange(m) >= q)] = True
 
     for c, q in first.items():

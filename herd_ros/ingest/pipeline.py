@@ -355,12 +355,13 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
         f = CollarFilter(params)
         rec = TimelineRecorder(f)
         refitter = MotionRefitter(1, refit) if refit is not None else None
+        def use(fit, f=f):
+            f.params = with_motion(params, fit)
+
         for k in rows:
             if refitter is not None:
                 # the models scheduled by this fix's stamp take over (motion_refit: lag_s)
-                queue = refitter.scheduled[0]
-                while queue and queue[0].apply_at <= t[k]:
-                    f.params = with_motion(params, queue.popleft().fit)
+                refitter.take_over(0, t[k], use)
             res = f.update(t[k], e[k], n[k], status=status[k], position_covariance=cov[k],
                            position_covariance_type=cov_type[k])
             reasons[k] = res.reason
