@@ -355,6 +355,7 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
         f = CollarFilter(params)
         rec = TimelineRecorder(f)
         refitter = MotionRefitter(1, refit) if refit is not None else None
+
         def use(fit, f=f):
             f.params = with_motion(params, fit)
 
