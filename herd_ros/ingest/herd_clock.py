@@ -108,17 +108,18 @@ class StateTimeline:
         return x[0], P[0], stale[0], init[0]
 
 
-def states_at(timelines, ticks):
+def states_at(timelines, ticks, position_cov_only: bool = False):
     """:meth:`StateTimeline.at` of several timelines at the same ``ticks`` (T,): (x (N, T, 4),
-    P (N, T, 4, 4), stale (N, T), initialised (N, T)). Each tick takes the timeline's state
-    after its last accepted fix at or before it, predicted to the tick with that state's
-    motion model; the predictions of every timeline are one compiled call over all of them,
-    split over the collar threads (:mod:`~herd_ros.ingest.collar_threads`: each state's
-    prediction is its own, so the split never changes a number)."""
+    P (N, T, 4, 4), stale (N, T), initialised (N, T)); with ``position_cov_only`` P is the
+    position block alone, (N, T, 2, 2). Each tick takes the timeline's state after its last
+    accepted fix at or before it, predicted to the tick with that state's motion model; the
+    predictions of every timeline are one compiled call over all of them, split over the
+    collar threads (:mod:`~herd_ros.ingest.collar_threads`: each state's prediction is its
+    own, so the split never changes a number)."""
     ticks = np.asarray(ticks, dtype=float)
     N, T = len(timelines), len(ticks)
     x = np.full((N, T, 4), np.nan)
-    P = np.full((N, T, 4, 4), np.nan)
+    P = np.full((N, T, 2, 2) if position_cov_only else (N, T, 4, 4), np.nan)
     stale = np.ones((N, T), bool)
     sizes = np.array([len(tl.t) for tl in timelines], dtype=np.int64)
     idx = np.full((N, T), -1, dtype=np.int64)
@@ -148,7 +149,7 @@ def states_at(timelines, ticks):
         return run
 
     collar_threads.run(part(sl) for sl in collar_threads.split(np.ones(len(g))))
-    x[init], P[init] = xs, Ps
+    x[init], P[init] = xs, (Ps[:, :2, :2] if position_cov_only else Ps)
     stale_after = np.array([float(tl.stale_after) for tl in timelines])
     stale[init] = tau > np.broadcast_to(stale_after[:, None], (N, T))[init]
     x[stale] = np.nan
@@ -210,16 +211,18 @@ def resample_timelines(timelines: dict[str, StateTimeline], ticks, agents=None
     """Offline: every agent's causal estimate at every tick, as a :class:`HerdTrajectory`.
 
     ``meta`` holds ``velocities`` (T, N, 2) m/s, ``position_cov`` (T, N, 2, 2) m²,
-    ``state_cov`` (T, N, 4, 4), ``stale`` (T, N) and ``initialised`` (T, N) booleans.
-    Positions of agents without any accepted fix at or before a tick are NaN.
+    ``stale`` (T, N) and ``initialised`` (T, N) booleans. Positions of agents without any
+    accepted fix at or before a tick are NaN.
     """
     agents = list(timelines) if agents is None else list(agents)
     ticks = np.asarray(ticks, dtype=float)
-    x, P, stale, init = states_at([timelines[a] for a in agents], ticks)
-    x, P = x.swapaxes(0, 1), np.ascontiguousarray(P.swapaxes(0, 1))
+    x, P, stale, init = states_at([timelines[a] for a in agents], ticks,
+                                  position_cov_only=True)
+    x = x.swapaxes(0, 1)
     return HerdTrajectory(ticks, agents, x[..., :2].copy(), meta={
-        'velocities': x[..., 2:].copy(), 'position_cov': P[..., :2, :2].copy(),
-        'state_cov': P, 'stale': stale.T.copy(), 'initialised': init.T.copy()})
+        'velocities': x[..., 2:].copy(),
+        'position_cov': np.ascontiguousarray(P.swapaxes(0, 1)),
+        'stale': stale.T.copy(), 'initialised': init.T.copy()})
 
 
 @dataclass

@@ -583,7 +583,6 @@ def trajectory_from_fixes(fixes: pd.DataFrame, dt: float | None = None, datum=No
             traj.positions[:, i] = x[:, :2]
             traj.meta['velocities'][:, i] = x[:, 2:]
             traj.meta['position_cov'][:, i] = P[:, :2, :2]
-            traj.meta['state_cov'][:, i] = P
     elif smoother == 'fir':
         from herd_ros.ingest.smoothing import gaussian_fir
         if not np.isfinite(traj.positions).all():
