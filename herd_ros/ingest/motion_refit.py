@@ -229,11 +229,6 @@ class MotionRefitter:
                 use(entry.fit)
         return True
 
-    def waiting_for_fit(self, collar: int, stamp: float) -> bool:
-        """Whether collar ``collar``'s fix stamped ``stamp`` needs a model still being
-        fitted."""
-        return any(e.apply_at <= stamp and not e.ready for e in self.scheduled[collar])
-
 
 @dataclass
 class RefitJob:
