@@ -86,3 +86,24 @@ def test_gpx(tmp_path):
     p.write_text('<gpx><trk><trkseg>')
     with pytest.raises(HerdInputError, match='not valid XML'):
         read_gpx(p)
+
+
+def test_normalise_keeps_a_fixes_table_and_converts_anything_else(tmp_path):
+    import pandas as pd
+
+    from herd_ros.io.gps_files import FIX_COLUMNS, normalise_fixes
+    p = tmp_path / 'a.csv'
+    p.write_text('time,agent,lat,lon\n1,7,46.5,7.25\n2,7,46.5,7.25\n')
+    fixes = read_gps_csv(p)
+    assert normalise_fixes(fixes) is fixes          # a reader's table: no copy
+    raw = pd.DataFrame({'agent': [7, 8], 'time': [2, 1], 'lat': [46.5, 46.6],
+                        'lon': [7.25, 7.3], 'status': [0.0, np.nan]}, index=[5, 3])
+    out = normalise_fixes(raw)
+    assert out is not raw and tuple(out.columns) == FIX_COLUMNS
+    assert list(out['agent']) == ['7', '8'] and list(out['status']) == [0, 0]
+    assert out['time'].dtype == np.float64 and list(out.index) == [0, 1]
+    assert list(raw.columns) == ['agent', 'time', 'lat', 'lon', 'status']    # untouched
+    shifted = fixes.iloc[1:]                        # not the default index: a new table
+    assert list(normalise_fixes(shifted).index) == [0]
+    ids = fixes.assign(agent=fixes['agent'].astype(object).where([True, False], 3))
+    assert list(normalise_fixes(ids)['agent']) == ['7', '3']   # an id not a str: converted

@@ -71,7 +71,11 @@ def build_parser(verbs=None) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run one verb; as the console script (``argv`` None) the process then ends at once
-    (:func:`herd_ros.process_exit.exit_process`: no 0.4 s interpreter teardown)."""
+    (:func:`herd_ros.process_exit.exit_process`: no 0.4 s interpreter teardown), and it
+    keeps the memory it frees (:func:`herd_ros.process_memory.keep_freed_memory`)."""
+    if argv is None:
+        from herd_ros.process_memory import keep_freed_memory
+        keep_freed_memory()
     status = _main(argv)
     if argv is None:
         from herd_ros.process_exit import exit_process

@@ -400,8 +400,6 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
     bounds = np.searchsorted(who, np.arange(len(agents) + 1))   # rows sorted by agent
     bank = collar_bank.CollarBank(len(agents), params)
     m = len(rows)
-    out = collar_bank.FixBatch.empty(m)
-    motion = np.empty((m, 2))
     refitter = None
     if refit is not None:
         refitter = MotionRefitter(len(agents), refit)
@@ -417,6 +415,8 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
         at[order] = np.arange(m)
     else:
         at = None
+        out = collar_bank.FixBatch.empty(m)
+        motion = np.empty((m, 2))
         motion[:, 0] = params.accel_std
         motion[:, 1] = params.velocity_tau
         R = bank.measurement_covariances(cov_type[rows], cov[rows], codes[rows])

@@ -41,7 +41,10 @@ MOVEBANK_COLUMNS = ('timestamp', 'location-long', 'location-lat',
 
 
 def normalise_fixes(df: pd.DataFrame) -> pd.DataFrame:
-    """Add the optional columns with their defaults and fix the dtypes."""
+    """Add the optional columns with their defaults and fix the dtypes (a table that is
+    already a fixes table, as every reader returns, is returned as it is: no copy)."""
+    if _is_fixes_table(df):
+        return df
     out = df.copy()
     defaults = {'alt': np.nan, 'status': 0, 'position_covariance_type': 0,
                 'cov_ee': np.nan, 'cov_en': np.nan, 'cov_nn': np.nan}
@@ -55,6 +58,29 @@ def normalise_fixes(df: pd.DataFrame) -> pd.DataFrame:
         out[col] = out[col].fillna(0).astype(int)
     cols = list(FIX_COLUMNS) + [c for c in out.columns if c not in FIX_COLUMNS]
     return out[cols].reset_index(drop=True)
+
+
+def _is_fixes_table(df: pd.DataFrame) -> bool:
+    """``df`` has exactly :data:`FIX_COLUMNS`, in order, with their dtypes (agent ids as
+    str), and the default index: what :func:`normalise_fixes` makes."""
+    if tuple(df.columns) != FIX_COLUMNS or not isinstance(df.index, pd.RangeIndex):
+        return False
+    if df.index.start != 0 or df.index.step != 1:
+        return False
+    kinds = dict(zip(df.columns, df.dtypes))
+    if any(kinds[c] != np.float64 for c in ('time', 'lat', 'lon', 'alt', 'cov_ee', 'cov_en',
+                                            'cov_nn')):
+        return False
+    if any(kinds[c] != np.int64 for c in ('status', 'position_covariance_type')):
+        return False
+    if kinds['agent'] != _STR_DTYPE:
+        return False
+    return (_STR_DTYPE != object
+            or pd.api.types.infer_dtype(df['agent'], skipna=False) in ('string', 'empty'))
+
+
+#: the dtype ``astype(str)`` gives (object before pandas 3, a string dtype from it)
+_STR_DTYPE = pd.Series(['x'], dtype=object).astype(str).dtype
 
 
 from herd_ros.io.csv_text import check_csv_text  # noqa: E402
