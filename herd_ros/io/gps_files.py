@@ -75,7 +75,7 @@ def _is_fixes_table(df: pd.DataFrame) -> bool:
         return False
     if kinds['agent'] != _STR_DTYPE:
         return False
-    return (_STR_DTYPE != object
+    return (_STR_DTYPE.kind != 'O'
             or pd.api.types.infer_dtype(df['agent'], skipna=False) in ('string', 'empty'))
 
 
