@@ -73,10 +73,8 @@ def _is_fixes_table(df: pd.DataFrame) -> bool:
         return False
     if any(kinds[c] != np.int64 for c in ('status', 'position_covariance_type')):
         return False
-    if kinds['agent'] != _STR_DTYPE:
-        return False
-    return (_STR_DTYPE.kind != 'O'
-            or pd.api.types.infer_dtype(df['agent'], skipna=False) in ('string', 'empty'))
+    return (kinds['agent'] == _STR_DTYPE
+            and pd.api.types.infer_dtype(df['agent'], skipna=False) in ('string', 'empty'))
 
 
 #: the dtype ``astype(str)`` gives (object before pandas 3, a string dtype from it)
