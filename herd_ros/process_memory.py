@@ -11,10 +11,12 @@ page faults are slow and vary). Served from a heap that is kept, the freed pages
 reused: ~75 000 faults, 0.2 s.
 
 :func:`keep_freed_memory` sets both thresholds (``mallopt``, glibc only) for the rest of
-the process. Peak memory barely moves (a freed block is reused before the heap grows);
-what changes is that the process does not give memory back before it ends, which suits a
-command that runs and exits (the ``herd-ros`` verbs), not a long-running node, which keeps
-glibc's defaults. ``HERD_ROS_MALLOC=default`` leaves the defaults to a command too.
+the process. What it costs is that the process gives no memory back before it ends, and
+its peak can rise by what the heap cannot reuse: +4 % on that ingest (452 against 436 MiB,
+for 0.95 x the wall time, farm-bench, 10 pairs), +8 % on ``herd-ros fit`` of the steers'
+72 h (1 012 against 941 MiB, no faster). So a verb asks for it (``KEEPS_FREED_MEMORY =
+True`` in its module: ``herd-ros ingest``); the other verbs and the nodes keep glibc's
+defaults, and ``HERD_ROS_MALLOC=default`` leaves them to ingest too.
 """
 from __future__ import annotations
 

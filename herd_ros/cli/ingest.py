@@ -12,6 +12,8 @@ from pathlib import Path
 from herd_ros.errors import HerdInputError
 
 HELP = 'filter GPS fixes (CSV, Movebank, GPX or bag) onto one clock: a trajectory CSV'
+#: the process keeps the memory it frees (:mod:`herd_ros.process_memory`)
+KEEPS_FREED_MEMORY = True
 
 
 def parse_datum(text: str | None):

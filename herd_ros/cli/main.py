@@ -65,17 +65,16 @@ def build_parser(verbs=None) -> argparse.ArgumentParser:
         p = sub.add_parser(verb, help=module.HELP, description=module.HELP,
                            formatter_class=DefaultsHelpFormatter)
         module.add_arguments(p)
-        p.set_defaults(_run=module.run)
+        p.set_defaults(_run=module.run,
+                       _keeps_freed_memory=getattr(module, 'KEEPS_FREED_MEMORY', False))
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run one verb; as the console script (``argv`` None) the process then ends at once
-    (:func:`herd_ros.process_exit.exit_process`: no 0.4 s interpreter teardown), and it
-    keeps the memory it frees (:func:`herd_ros.process_memory.keep_freed_memory`)."""
-    if argv is None:
-        from herd_ros.process_memory import keep_freed_memory
-        keep_freed_memory()
+    (:func:`herd_ros.process_exit.exit_process`: no 0.4 s interpreter teardown), and a
+    verb whose module sets ``KEEPS_FREED_MEMORY`` keeps the memory it frees
+    (:func:`herd_ros.process_memory.keep_freed_memory`)."""
     status = _main(argv)
     if argv is None:
         from herd_ros.process_exit import exit_process
@@ -87,6 +86,9 @@ def _main(argv: list[str] | None) -> int:
     words = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser([words[0]] if words and words[0] in VERBS else None)
     args = parser.parse_args(words)
+    if argv is None and args._keeps_freed_memory:
+        from herd_ros.process_memory import keep_freed_memory
+        keep_freed_memory()
     try:
         status = args._run(args)
     except HerdInputError as exc:
