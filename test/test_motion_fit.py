@@ -270,3 +270,53 @@ def test_the_start_values_of_all_collars_at_once_are_each_collars_own():
         coef = np.linalg.lstsq(np.column_stack([dt, np.full(len(dt), 2.0)]), y, rcond=None)[0]
         assert D[j] == pytest.approx(np.clip(coef[0], 1e-5, 1e3), rel=1e-9)
         assert s2[j] == pytest.approx(np.clip(coef[1], 0.25, 1e4), rel=1e-9)
+
+
+def test_each_collars_search_is_its_own_alone_or_beside_others():
+    """The compiled Nelder-Mead searches two collars side by side (its lanes): a collar's
+    optimum is the same, to the last bit, alone as in any batch (windows of different
+    lengths, held coordinates, a collar with nothing free, with and without the walk
+    component), and the ℓ it reports is the likelihood at the point it reports."""
+    from herd_ros.ingest import collar_bank
+    from herd_ros.ingest.motion_fit import HUBER_NIS, NM_FTOL, _pack, innovation_loglik
+    if not collar_bank.AVAILABLE:
+        pytest.skip('no compiled kernels')
+    K = collar_bank.KERNELS
+    rng = np.random.default_rng(5)
+    lengths = (60, 60, 45, 3, 60, 2, 30, 59, 1)
+    tracks = []
+    for k in lengths:
+        t, z = simulate_iou(rng, k, velocity_tau=rng.uniform(30, 3000),
+                            diffusion=rng.uniform(0.01, 1.0), position_std=3.0)
+        z[rng.random(k) < 0.1] += 200.0                      # a few bursts
+        tracks.append((t, z, np.where(rng.random(k) < 0.5, np.nan, 9.0)))
+    t, z, r, n = _pack(tracks, 60)
+    N = len(n)
+    x0 = np.column_stack([rng.uniform(1.5, 3.0, N), rng.uniform(-3.0, -1.0, N),
+                          rng.uniform(0.0, 1.5, N)])
+    lo = np.tile([0.5, -8.0, -0.6], (N, 1))
+    hi = np.tile([5.2, 2.0, 4.0], (N, 1))
+    step = np.tile([0.5, 0.5, 0.5], (N, 1))
+    step[1, 0] = step[4, 2] = 0.0                            # held coordinates
+    step[6] = 0.0                                           # nothing free
+    evals = rng.integers(10, 90, N).astype(np.int64)
+    for walk in ((0.0, 1.0, 0.5, 0.0), (0.1, 0.5, 0.05, 0.3)):
+        def search(rows):
+            x, ll = np.empty((len(rows), 3)), np.empty(len(rows))
+            c = np.ascontiguousarray
+            K.motion_nelder_mead(c(t[rows]), c(z[rows]), c(r[rows]), c(n[rows]), c(x0[rows]),
+                                 c(lo[rows]), c(hi[rows]), c(step[rows]), *walk, HUBER_NIS,
+                                 c(evals[rows]), NM_FTOL, x, ll)
+            return x, ll
+        x_all, ll_all = search(np.arange(N))
+        for i in range(N):
+            x_one, ll_one = search(np.array([i]))
+            assert np.array_equal(x_one[0], x_all[i]) and ll_one[0] == ll_all[i]
+        x_rev, ll_rev = search(np.arange(N)[::-1])
+        assert np.array_equal(x_rev[::-1], x_all) and np.array_equal(ll_rev[::-1], ll_all)
+        assert np.all((x_all >= lo) & (x_all <= hi))
+        tv = 10.0 ** x_all[:, :1]
+        D = (10.0 ** x_all[:, 1:2] * tv) ** 2
+        w = None if walk[0] <= 0 else walk
+        want = innovation_loglik(t, z, r, n, tv, D, 10.0 ** x_all[:, 2:], w)[:, 0]
+        np.testing.assert_allclose(ll_all, want, rtol=1e-12, atol=1e-9)

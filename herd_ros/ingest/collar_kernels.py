@@ -808,6 +808,296 @@ def _nm_value(t, z, r, i, m, x, lo, hi, walk, walk_prob, walk_r2, huber):
 
 
 @_jit
+def _lane_axis(p, v, a, b, c, f, gg, qpp, qpv, qvv, rk, extra, zk):
+    """One axis of one component's predict and update in :func:`_loglik_one`, the same
+    operations in the same order: (p, v, a, b, c after the update, y²/S, S)."""
+    ap = a + 2.0 * f * b + f * f * c + qpp
+    bp = gg * (b + f * c) + qpv
+    cp = gg * gg * c + qvv
+    S = ap + rk + extra
+    kp = ap / S
+    kv = bp / S
+    pp = p + f * v
+    y = zk - pp
+    return pp + kp * y, gg * v + kv * y, ap - kp * ap, bp - kp * bp, cp - kv * bp, y * y / S, S
+
+
+@_jit
+def _lane_mix(w0, w1, p0, v0, a0, b0, c0, p1, v1, a1, b1, c1):
+    """One axis of :func:`_loglik_one`'s collapse of the two components (moment matching)."""
+    pn = w0 * p0 + w1 * p1
+    vn = w0 * v0 + w1 * v1
+    return (pn, vn, w0 * (a0 + (p0 - pn) ** 2) + w1 * (a1 + (p1 - pn) ** 2),
+            w0 * (b0 + (p0 - pn) * (v0 - vn)) + w1 * (b1 + (p1 - pn) * (v1 - vn)),
+            w0 * (c0 + (v0 - vn) ** 2) + w1 * (c1 + (v1 - vn) ** 2))
+
+
+@_jit
+def _lane_weights(l0, l1):
+    """ℓ_k and the walk component's weight from the components' ℓ (:func:`_loglik_one`)."""
+    diff = l1 - l0
+    e = math.exp(-abs(diff))
+    if diff > 0.0:
+        return l1 + math.log1p(e), 1.0 / (1.0 + e)
+    return l0 + math.log1p(e), e / (1.0 + e)
+
+
+@_jit
+def _loglik_pair(t, z, r, i, mi, tvi, Di, smi, walk_i, j, mj, tvj, Dj, smj, walk_j,
+                 walk_prob, walk_r2, huber):
+    """(ℓ_i, ℓ_j): :func:`_loglik_one` of two evaluations at once (collar i's first ``mi``
+    fixes at (τ_v, D, σ_m²) = (tvi, Di, smi), collar j's likewise), to the last bit what
+    two calls give. Each step of one recursion waits on its exp and logs; two independent
+    ones written side by side, stage by stage, keep the core busy: 1.35 × the evaluations
+    per second with the walk component, 1.25 × without, on a core of its own (where two
+    threads share one core, as this machine's two virtual CPUs do under load, the core is
+    busy anyway and the gain is gone). ``walk_i``, ``walk_j``: each collar's walk steps
+    (:func:`_walk_steps`), both empty for no walk component. Past the shorter collar's
+    last fix the longer one goes on alone (:func:`_lane_rest`)."""
+    use_walk = walk_i.shape[0] > 0
+    lg0 = math.log1p(-walk_prob) if use_walk else 0.0
+    lw0 = math.log(walk_prob) if use_walk else 0.0
+    log_two_pi = math.log(2.0 * math.pi)
+    Ai = math.sqrt(Di) / tvi
+    Aj = math.sqrt(Dj) / tvj
+    r0 = r[i, 0] if math.isfinite(r[i, 0]) else smi
+    ipx, ipy, ivx, ivy, iax, iay, ibx, iby = z[i, 0, 0], z[i, 0, 1], 0.0, 0.0, r0, r0, 0.0, 0.0
+    icx = Di / (2.0 * tvi)
+    icy = Di / (2.0 * tvi)
+    r0 = r[j, 0] if math.isfinite(r[j, 0]) else smj
+    jpx, jpy, jvx, jvy, jax, jay, jbx, jby = z[j, 0, 0], z[j, 0, 1], 0.0, 0.0, r0, r0, 0.0, 0.0
+    jcx = Dj / (2.0 * tvj)
+    jcy = Dj / (2.0 * tvj)
+    ll_i = 0.0
+    ll_j = 0.0
+    both = min(mi, mj)
+    for k in range(1, both):
+        rki = r[i, k] if math.isfinite(r[i, k]) else smi
+        rkj = r[j, k] if math.isfinite(r[j, k]) else smj
+        fi, gi, qppi, qpvi, qvvi = _motion(t[i, k] - t[i, k - 1], Ai, tvi)
+        fj, gj, qppj, qpvj, qvvj = _motion(t[j, k] - t[j, k - 1], Aj, tvj)
+        i0x = _lane_axis(ipx, ivx, iax, ibx, icx, fi, gi, qppi, qpvi, qvvi, rki, 0.0, z[i, k, 0])
+        j0x = _lane_axis(jpx, jvx, jax, jbx, jcx, fj, gj, qppj, qpvj, qvvj, rkj, 0.0, z[j, k, 0])
+        i0y = _lane_axis(ipy, ivy, iay, iby, icy, fi, gi, qppi, qpvi, qvvi, rki, 0.0, z[i, k, 1])
+        j0y = _lane_axis(jpy, jvy, jay, jby, jcy, fj, gj, qppj, qpvj, qvvj, rkj, 0.0, z[j, k, 1])
+        nis_i = 0.0 + i0x[5] + i0y[5]
+        nis_j = 0.0 + j0x[5] + j0y[5]
+        if not use_walk:
+            if nis_i > huber:
+                nis_i = 2.0 * math.sqrt(huber * nis_i) - huber
+            if nis_j > huber:
+                nis_j = 2.0 * math.sqrt(huber * nis_j) - huber
+        li0 = lg0 - log_two_pi - 0.5 * math.log(1.0 * i0x[6] * i0y[6]) - 0.5 * nis_i
+        lj0 = lg0 - log_two_pi - 0.5 * math.log(1.0 * j0x[6] * j0y[6]) - 0.5 * nis_j
+        if not use_walk:
+            ll_i += li0
+            ll_j += lj0
+            ipx, ivx, iax, ibx, icx = i0x[0], i0x[1], i0x[2], i0x[3], i0x[4]
+            ipy, ivy, iay, iby, icy = i0y[0], i0y[1], i0y[2], i0y[3], i0y[4]
+            jpx, jvx, jax, jbx, jcx = j0x[0], j0x[1], j0x[2], j0x[3], j0x[4]
+            jpy, jvy, jay, jby, jcy = j0y[0], j0y[1], j0y[2], j0y[3], j0y[4]
+            continue
+        wi = walk_i[k]
+        wj = walk_j[k]
+        i1x = _lane_axis(ipx, ivx, iax, ibx, icx, wi[0], wi[1], wi[2], wi[3], wi[4], rki,
+                         walk_r2, z[i, k, 0])
+        j1x = _lane_axis(jpx, jvx, jax, jbx, jcx, wj[0], wj[1], wj[2], wj[3], wj[4], rkj,
+                         walk_r2, z[j, k, 0])
+        i1y = _lane_axis(ipy, ivy, iay, iby, icy, wi[0], wi[1], wi[2], wi[3], wi[4], rki,
+                         walk_r2, z[i, k, 1])
+        j1y = _lane_axis(jpy, jvy, jay, jby, jcy, wj[0], wj[1], wj[2], wj[3], wj[4], rkj,
+                         walk_r2, z[j, k, 1])
+        li1 = (lw0 - log_two_pi - 0.5 * math.log(1.0 * i1x[6] * i1y[6])
+               - 0.5 * (0.0 + i1x[5] + i1y[5]))
+        lj1 = (lw0 - log_two_pi - 0.5 * math.log(1.0 * j1x[6] * j1y[6])
+               - 0.5 * (0.0 + j1x[5] + j1y[5]))
+        lki, w1i = _lane_weights(li0, li1)
+        lkj, w1j = _lane_weights(lj0, lj1)
+        ll_i += lki
+        ll_j += lkj
+        w0i = 1.0 - w1i
+        w0j = 1.0 - w1j
+        ipx, ivx, iax, ibx, icx = _lane_mix(w0i, w1i, i0x[0], i0x[1], i0x[2], i0x[3], i0x[4],
+                                            i1x[0], i1x[1], i1x[2], i1x[3], i1x[4])
+        jpx, jvx, jax, jbx, jcx = _lane_mix(w0j, w1j, j0x[0], j0x[1], j0x[2], j0x[3], j0x[4],
+                                            j1x[0], j1x[1], j1x[2], j1x[3], j1x[4])
+        ipy, ivy, iay, iby, icy = _lane_mix(w0i, w1i, i0y[0], i0y[1], i0y[2], i0y[3], i0y[4],
+                                            i1y[0], i1y[1], i1y[2], i1y[3], i1y[4])
+        jpy, jvy, jay, jby, jcy = _lane_mix(w0j, w1j, j0y[0], j0y[1], j0y[2], j0y[3], j0y[4],
+                                            j1y[0], j1y[1], j1y[2], j1y[3], j1y[4])
+    if mi > both:
+        ll_i = _lane_rest(t, z, r, i, max(both, 1), mi, tvi, Ai, smi, walk_i, use_walk, lg0,
+                          lw0, log_two_pi, walk_r2, huber, ll_i,
+                          (ipx, ivx, iax, ibx, icx, ipy, ivy, iay, iby, icy))
+    if mj > both:
+        ll_j = _lane_rest(t, z, r, j, max(both, 1), mj, tvj, Aj, smj, walk_j, use_walk, lg0,
+                          lw0, log_two_pi, walk_r2, huber, ll_j,
+                          (jpx, jvx, jax, jbx, jcx, jpy, jvy, jay, jby, jcy))
+    return ll_i, ll_j
+
+
+@_jit
+def _lane_rest(t, z, r, c, k0, m, tv, acc, sm2, walk, use_walk, lg0, lw0, log_two_pi,
+               walk_r2, huber, ll, state):
+    """Collar c's steps k0 … m − 1 of :func:`_loglik_one` on their own, from ``state``
+    (p, v, a, b, c of the east axis, then of the north) and the ℓ so far: the longer
+    collar's rest in :func:`_loglik_pair`, the same operations as there."""
+    px, vx, ax, bx, cx, py, vy, ay, by, cy = state
+    for k in range(k0, m):
+        rk = r[c, k] if math.isfinite(r[c, k]) else sm2
+        f, gg, qpp, qpv, qvv = _motion(t[c, k] - t[c, k - 1], acc, tv)
+        gx = _lane_axis(px, vx, ax, bx, cx, f, gg, qpp, qpv, qvv, rk, 0.0, z[c, k, 0])
+        gy = _lane_axis(py, vy, ay, by, cy, f, gg, qpp, qpv, qvv, rk, 0.0, z[c, k, 1])
+        nis = 0.0 + gx[5] + gy[5]
+        if not use_walk and nis > huber:
+            nis = 2.0 * math.sqrt(huber * nis) - huber
+        l0 = lg0 - log_two_pi - 0.5 * math.log(1.0 * gx[6] * gy[6]) - 0.5 * nis
+        if not use_walk:
+            ll += l0
+            px, vx, ax, bx, cx = gx[0], gx[1], gx[2], gx[3], gx[4]
+            py, vy, ay, by, cy = gy[0], gy[1], gy[2], gy[3], gy[4]
+            continue
+        w = walk[k]
+        hx = _lane_axis(px, vx, ax, bx, cx, w[0], w[1], w[2], w[3], w[4], rk, walk_r2,
+                        z[c, k, 0])
+        hy = _lane_axis(py, vy, ay, by, cy, w[0], w[1], w[2], w[3], w[4], rk, walk_r2,
+                        z[c, k, 1])
+        l1 = (lw0 - log_two_pi - 0.5 * math.log(1.0 * hx[6] * hy[6])
+              - 0.5 * (0.0 + hx[5] + hy[5]))
+        lk, w1 = _lane_weights(l0, l1)
+        ll += lk
+        w0 = 1.0 - w1
+        px, vx, ax, bx, cx = _lane_mix(w0, w1, gx[0], gx[1], gx[2], gx[3], gx[4], hx[0],
+                                       hx[1], hx[2], hx[3], hx[4])
+        py, vy, ay, by, cy = _lane_mix(w0, w1, gy[0], gy[1], gy[2], gy[3], gy[4], hy[0],
+                                       hy[1], hy[2], hy[3], hy[4])
+    return ll
+
+
+#: the phases of a lane of :func:`motion_nelder_mead`: the point it waits on is ...
+_NM_IDLE, _NM_INIT, _NM_REFLECT, _NM_EXPAND, _NM_CONTRACT, _NM_SHRINK = 0, 1, 2, 3, 4, 5
+
+
+@_jit
+def _nm_point(phase, ln, jv, S, XR, XE, XK):
+    """The point lane ln waits on: a vertex (initial simplex, shrink) or a trial point."""
+    if phase[ln] == _NM_INIT or phase[ln] == _NM_SHRINK:
+        return S[ln, jv[ln]]
+    if phase[ln] == _NM_REFLECT:
+        return XR[ln]
+    if phase[ln] == _NM_EXPAND:
+        return XE[ln]
+    return XK[ln]
+
+
+@_jit
+def _nm_clip(x, lo, hi, i):
+    """x clipped to collar i's box [lo, hi], in place (as :func:`_nm_value`)."""
+    for d in range(3):
+        x[d] = min(max(x[d], lo[i, d]), hi[i, d])
+
+
+@_jit
+def _nm_top(ln, i, S, F, XC, XR, nfree, evals, max_evals, ftol, phase, out_x, out_ll):
+    """The head of Nelder-Mead's loop for lane ln (collar i): done (its best vertex
+    written, the lane idle) once its budget is spent or its simplex's values agree within
+    ``ftol``; else the vertices sorted, best first, and the reflection of the worst is
+    the point it waits on."""
+    nf = nfree[ln]
+    done = evals[ln] >= max_evals[i]
+    if not done:
+        for j in range(1, nf + 1):
+            k = j
+            while k > 0 and F[ln, k] < F[ln, k - 1]:
+                for d in range(3):
+                    tmp = S[ln, k, d]
+                    S[ln, k, d] = S[ln, k - 1, d]
+                    S[ln, k - 1, d] = tmp
+                tmp = F[ln, k]
+                F[ln, k] = F[ln, k - 1]
+                F[ln, k - 1] = tmp
+                k -= 1
+        done = F[ln, nf] - F[ln, 0] < ftol
+    if done:
+        best = 0
+        for j in range(1, nf + 1):
+            if F[ln, j] < F[ln, best]:
+                best = j
+        out_x[i, :] = S[ln, best]
+        out_ll[i] = -F[ln, best]
+        phase[ln] = _NM_IDLE
+        return
+    for d in range(3):
+        s_ = 0.0
+        for j in range(nf):
+            s_ += S[ln, j, d]
+        XC[ln, d] = s_ / nf
+    for d in range(3):
+        XR[ln, d] = XC[ln, d] + (XC[ln, d] - S[ln, nf, d])
+    phase[ln] = _NM_REFLECT
+
+
+@_jit
+def _nm_advance(ln, i, value, S, F, XC, XR, XE, XK, FR, nfree, evals, jv, max_evals, ftol,
+                phase, out_x, out_ll):
+    """Lane ln (collar i) takes the value (−ℓ) of the point it waited on and moves on to
+    the next point, Nelder & Mead's rules as the one-collar loop had them."""
+    nf = nfree[ln]
+    p = phase[ln]
+    if p == _NM_INIT:
+        F[ln, jv[ln]] = value
+        jv[ln] += 1
+        if jv[ln] <= nf:
+            return
+        evals[ln] = nf + 1
+    elif p == _NM_REFLECT:
+        evals[ln] += 1
+        FR[ln] = value
+        if value < F[ln, 0]:
+            for d in range(3):
+                XE[ln, d] = XC[ln, d] + 2.0 * (XC[ln, d] - S[ln, nf, d])
+            phase[ln] = _NM_EXPAND
+            return
+        if value < F[ln, nf - 1]:
+            S[ln, nf, :] = XR[ln]
+            F[ln, nf] = value
+        else:
+            outside = value < F[ln, nf]
+            for d in range(3):
+                base = XR[ln, d] if outside else S[ln, nf, d]
+                XK[ln, d] = XC[ln, d] + 0.5 * (base - XC[ln, d])
+            phase[ln] = _NM_CONTRACT
+            return
+    elif p == _NM_EXPAND:
+        evals[ln] += 1
+        if value < FR[ln]:
+            S[ln, nf, :] = XE[ln]
+            F[ln, nf] = value
+        else:
+            S[ln, nf, :] = XR[ln]
+            F[ln, nf] = FR[ln]
+    elif p == _NM_CONTRACT:
+        evals[ln] += 1
+        if value < min(FR[ln], F[ln, nf]):
+            S[ln, nf, :] = XK[ln]
+            F[ln, nf] = value
+        else:
+            for j in range(1, nf + 1):          # shrink towards the best
+                for d in range(3):
+                    S[ln, j, d] = S[ln, 0, d] + 0.5 * (S[ln, j, d] - S[ln, 0, d])
+            jv[ln] = 1
+            phase[ln] = _NM_SHRINK
+            return
+    else:                                       # shrink
+        F[ln, jv[ln]] = value
+        evals[ln] += 1
+        jv[ln] += 1
+        if jv[ln] <= nf:
+            return
+    _nm_top(ln, i, S, F, XC, XR, nfree, evals, max_evals, ftol, phase, out_x, out_ll)
+
+
+@_jit
 def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_prob,
                        walk_r2,
                        huber, max_evals, ftol, out_x, out_ll):
@@ -815,92 +1105,91 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
     ``x0`` (N, 3) with initial steps ``step`` (N, 3) (a coordinate with step 0 is held),
     within [lo, hi] (N, 3); stops when the simplex's values agree within ``ftol`` or
     after ``max_evals[i]`` evaluations. Writes the optimum to ``out_x`` (N, 3), ℓ to
-    ``out_ll`` (N,)."""
-    S = np.empty((4, 3))
-    F = np.empty(4)
-    xc = np.empty(3)
-    xr = np.empty(3)
-    xe = np.empty(3)
-    xk = np.empty(3)
-    dims = np.empty(3, np.int64)
-    walk = np.empty((t.shape[1] if walk_accel > 0.0 else 0, 5))
-    for i in range(t.shape[0]):
-        m = n[i]
-        _walk_steps(t, i, m, walk_accel, walk_tau, walk)
-        nfree = 0
-        for d in range(3):
-            if step[i, d] != 0.0:
-                dims[nfree] = d
-                nfree += 1
-        if nfree == 0:
-            out_x[i, :] = x0[i]
-            out_ll[i] = -_nm_value(t, z, r, i, m, out_x[i], lo, hi, walk, walk_prob, walk_r2, huber)
-            continue
-        for j in range(nfree + 1):
-            for d in range(3):
-                S[j, d] = x0[i, d]
-            if j > 0:
-                S[j, dims[j - 1]] += step[i, dims[j - 1]]
-            F[j] = _nm_value(t, z, r, i, m, S[j], lo, hi, walk, walk_prob, walk_r2, huber)
-        evals = nfree + 1
-        while evals < max_evals[i]:
-            # order: best first
-            for j in range(1, nfree + 1):
-                k = j
-                while k > 0 and F[k] < F[k - 1]:
+    ``out_ll`` (N,).
+
+    Two collars are searched side by side (two *lanes*, each a state machine over its
+    simplex: :func:`_nm_advance`), so that their likelihood evaluations run as pairs
+    (:func:`_loglik_pair`); each collar's search, evaluation by evaluation, is what it
+    would be alone, to the last bit (``test_motion_fit.py``). On one thread, 200 collars'
+    200-fix windows from one start (120 evaluations at most) take 0.125 s against 0.166 s
+    one collar after another."""
+    L = 2
+    W = t.shape[1] if walk_accel > 0.0 else 0
+    walk = np.empty((L, W, 5))
+    S = np.empty((L, 4, 3))
+    F = np.empty((L, 4))
+    XC = np.empty((L, 3))
+    XR = np.empty((L, 3))
+    XE = np.empty((L, 3))
+    XK = np.empty((L, 3))
+    FR = np.empty(L)
+    nfree = np.zeros(L, np.int64)
+    evals = np.zeros(L, np.int64)
+    jv = np.zeros(L, np.int64)
+    phase = np.zeros(L, np.int64)
+    col = np.zeros(L, np.int64)
+    nxt = 0
+    N = t.shape[0]
+    while True:
+        for ln in range(L):                      # an idle lane takes the next collar
+            while phase[ln] == _NM_IDLE and nxt < N:
+                i = nxt
+                nxt += 1
+                _walk_steps(t, i, n[i], walk_accel, walk_tau, walk[ln])
+                nf = 0
+                for d in range(3):
+                    if step[i, d] != 0.0:
+                        nf += 1
+                if nf == 0:
+                    out_x[i, :] = x0[i]
+                    out_ll[i] = -_nm_value(t, z, r, i, n[i], out_x[i], lo, hi, walk[ln],
+                                           walk_prob, walk_r2, huber)
+                    continue
+                k = 0
+                for j in range(nf + 1):
                     for d in range(3):
-                        tmp = S[k, d]
-                        S[k, d] = S[k - 1, d]
-                        S[k - 1, d] = tmp
-                    tmp = F[k]
-                    F[k] = F[k - 1]
-                    F[k - 1] = tmp
-                    k -= 1
-            if F[nfree] - F[0] < ftol:
-                break
-            for d in range(3):
-                s_ = 0.0
-                for j in range(nfree):
-                    s_ += S[j, d]
-                xc[d] = s_ / nfree
-            for d in range(3):
-                xr[d] = xc[d] + (xc[d] - S[nfree, d])
-            fr = _nm_value(t, z, r, i, m, xr, lo, hi, walk, walk_prob, walk_r2, huber)
-            evals += 1
-            if fr < F[0]:
+                        S[ln, j, d] = x0[i, d]
                 for d in range(3):
-                    xe[d] = xc[d] + 2.0 * (xc[d] - S[nfree, d])
-                fe = _nm_value(t, z, r, i, m, xe, lo, hi, walk, walk_prob, walk_r2, huber)
-                evals += 1
-                if fe < fr:
-                    S[nfree, :] = xe
-                    F[nfree] = fe
-                else:
-                    S[nfree, :] = xr
-                    F[nfree] = fr
-                continue
-            if fr < F[nfree - 1]:
-                S[nfree, :] = xr
-                F[nfree] = fr
-                continue
-            outside = fr < F[nfree]
-            for d in range(3):
-                base = xr[d] if outside else S[nfree, d]
-                xk[d] = xc[d] + 0.5 * (base - xc[d])
-            fk = _nm_value(t, z, r, i, m, xk, lo, hi, walk, walk_prob, walk_r2, huber)
-            evals += 1
-            if fk < min(fr, F[nfree]):
-                S[nfree, :] = xk
-                F[nfree] = fk
-                continue
-            for j in range(1, nfree + 1):          # shrink towards the best
-                for d in range(3):
-                    S[j, d] = S[0, d] + 0.5 * (S[j, d] - S[0, d])
-                F[j] = _nm_value(t, z, r, i, m, S[j], lo, hi, walk, walk_prob, walk_r2, huber)
-                evals += 1
-        best = 0
-        for j in range(1, nfree + 1):
-            if F[j] < F[best]:
-                best = j
-        out_x[i, :] = S[best]
-        out_ll[i] = -F[best]
+                    if step[i, d] != 0.0:
+                        k += 1
+                        S[ln, k, d] += step[i, d]
+                col[ln] = i
+                nfree[ln] = nf
+                evals[ln] = 0
+                jv[ln] = 0
+                phase[ln] = _NM_INIT
+        a = phase[0] != _NM_IDLE
+        b = phase[1] != _NM_IDLE
+        if not (a or b):
+            break
+        ia = col[0]
+        ib = col[1]
+        if a:
+            xa = _nm_point(phase, 0, jv, S, XR, XE, XK)
+            _nm_clip(xa, lo, hi, ia)
+        if b:
+            xb = _nm_point(phase, 1, jv, S, XR, XE, XK)
+            _nm_clip(xb, lo, hi, ib)
+        if a and b:
+            tva = 10.0 ** xa[0]
+            saa = 10.0 ** xa[1]
+            tvb = 10.0 ** xb[0]
+            sab = 10.0 ** xb[1]
+            la, lb = _loglik_pair(t, z, r, ia, n[ia], tva, saa * saa * tva * tva,
+                                  10.0 ** xa[2], walk[0], ib, n[ib], tvb,
+                                  sab * sab * tvb * tvb, 10.0 ** xb[2], walk[1],
+                                  walk_prob, walk_r2, huber)
+            va = -la
+            vb = -lb
+        elif a:
+            va = _nm_value(t, z, r, ia, n[ia], xa, lo, hi, walk[0], walk_prob, walk_r2,
+                           huber)
+        else:
+            vb = _nm_value(t, z, r, ib, n[ib], xb, lo, hi, walk[1], walk_prob, walk_r2,
+                           huber)
+        if a:
+            _nm_advance(0, ia, va, S, F, XC, XR, XE, XK, FR, nfree, evals, jv, max_evals,
+                        ftol, phase, out_x, out_ll)
+        if b:
+            _nm_advance(1, ib, vb, S, F, XC, XR, XE, XK, FR, nfree, evals, jv, max_evals,
+                        ftol, phase, out_x, out_ll)
