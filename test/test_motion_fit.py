@@ -320,3 +320,26 @@ def test_each_collars_search_is_its_own_alone_or_beside_others():
         w = None if walk[0] <= 0 else walk
         want = innovation_loglik(t, z, r, n, tv, D, 10.0 ** x_all[:, 2:], w)[:, 0]
         np.testing.assert_allclose(ll_all, want, rtol=1e-12, atol=1e-9)
+
+
+def test_a_grid_of_points_gives_what_each_point_alone_gives():
+    """The compiled likelihood evaluates a collar's grid points two at a time: the same
+    numbers, to the last bit, as each point on its own (an odd and an even grid)."""
+    from herd_ros.ingest import collar_bank
+    from herd_ros.ingest.motion_fit import _pack, innovation_loglik
+    if not collar_bank.AVAILABLE:
+        pytest.skip('no compiled kernels')
+    rng = np.random.default_rng(8)
+    tracks = [simulate_iou(rng, k, velocity_tau=300.0, diffusion=0.2, position_std=2.0)
+              for k in (40, 25, 2)]
+    t, z, r, n = _pack([(ti, zi, np.full(len(ti), np.nan)) for ti, zi in tracks], 40)
+    for G in (5, 6):
+        tv = 10 ** rng.uniform(0, 3, (3, G))
+        D = 10 ** rng.uniform(-3, 0, (3, G))
+        sm = 10 ** rng.uniform(0, 1.5, (3, G))
+        for walk in (None, (0.1, 120.0, 0.05, 25.0)):
+            grid = innovation_loglik(t, z, r, n, tv, D, sm, walk)
+            alone = np.column_stack([innovation_loglik(t, z, r, n, tv[:, g:g + 1],
+                                                       D[:, g:g + 1], sm[:, g:g + 1], walk)
+                                     for g in range(G)])
+            assert np.array_equal(grid, alone)

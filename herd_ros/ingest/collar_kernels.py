@@ -769,13 +769,21 @@ def motion_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk_accel,
     """:func:`herd_ros.ingest.motion_fit.innovation_loglik` compiled: ``out[i, g]`` is
     collar i's log-likelihood at parameter point g (``walk_accel`` ≤ 0: no walk
     component; ``huber``: the χ²₂ level beyond which an innovation costs linearly, used
-    without a walk component)."""
+    without a walk component). The points of a collar are evaluated two at a time
+    (:func:`_loglik_pair`: the same numbers as one at a time)."""
     walk = np.empty((t.shape[1] if walk_accel > 0.0 else 0, 5))
+    G = velocity_tau.shape[1]
     for i in range(t.shape[0]):
         _walk_steps(t, i, n[i], walk_accel, walk_tau, walk)
-        for g in range(velocity_tau.shape[1]):
-            out[i, g] = _loglik_one(t, z, r, i, n[i], velocity_tau[i, g], diffusion[i, g],
-                                    position_var[i, g], walk, walk_prob, walk_r2, huber)
+        for g in range(0, G - 1, 2):
+            out[i, g], out[i, g + 1] = _loglik_pair(
+                t, z, r, i, n[i], velocity_tau[i, g], diffusion[i, g], position_var[i, g],
+                walk, i, n[i], velocity_tau[i, g + 1], diffusion[i, g + 1],
+                position_var[i, g + 1], walk, walk_prob, walk_r2, huber)
+        if G % 2:
+            out[i, G - 1] = _loglik_one(t, z, r, i, n[i], velocity_tau[i, G - 1],
+                                        diffusion[i, G - 1], position_var[i, G - 1], walk,
+                                        walk_prob, walk_r2, huber)
 
 
 @_jit
