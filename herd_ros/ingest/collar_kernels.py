@@ -982,7 +982,9 @@ def _lane_rest(t, z, r, c, k0, m, tv, acc, sm2, walk, use_walk, lg0, lw0, log_tw
     return ll
 
 
-#: the phases of a lane of :func:`motion_nelder_mead`: the point it waits on is ...
+#: the phases of a lane of :func:`motion_nelder_mead`, by the point it waits on: none
+#: (idle), a vertex of the first simplex, the reflection, the expansion, the
+#: contraction, a vertex of a shrink
 _NM_IDLE, _NM_INIT, _NM_REFLECT, _NM_EXPAND, _NM_CONTRACT, _NM_SHRINK = 0, 1, 2, 3, 4, 5
 
 
