@@ -807,12 +807,24 @@ def _nm_value(t, z, r, i, m, x, lo, hi, walk, walk_prob, walk_r2, huber):
     """−ℓ at log10 parameters x = (τ_v, σ_a, σ_m²), clipped to [lo, hi] (σ_a the
     acceleration std: well defined from the random walk to the constant velocity; the
     diffusion is D = σ_a² τ_v²)."""
-    for d in range(3):
-        x[d] = min(max(x[d], lo[i, d]), hi[i, d])
+    _nm_clip(x, lo, hi, i)
+    tv, D, sm2 = _nm_params(x)
+    return -_loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber)
+
+
+@_jit
+def _nm_params(x):
+    """(τ_v, D, σ_m²) at log10 parameters x = (τ_v, σ_a, σ_m²): D = σ_a² τ_v²."""
     tv = 10.0 ** x[0]
     sa = 10.0 ** x[1]
-    return -_loglik_one(t, z, r, i, m, tv, sa * sa * tv * tv, 10.0 ** x[2],
-                        walk, walk_prob, walk_r2, huber)
+    return tv, sa * sa * tv * tv, 10.0 ** x[2]
+
+
+@_jit
+def _nm_clip(x, lo, hi, i):
+    """x clipped to collar i's box [lo, hi], in place."""
+    for d in range(3):
+        x[d] = min(max(x[d], lo[i, d]), hi[i, d])
 
 
 @_jit
@@ -1001,13 +1013,6 @@ def _nm_point(phase, ln, jv, S, XR, XE, XK):
 
 
 @_jit
-def _nm_clip(x, lo, hi, i):
-    """x clipped to collar i's box [lo, hi], in place (as :func:`_nm_value`)."""
-    for d in range(3):
-        x[d] = min(max(x[d], lo[i, d]), hi[i, d])
-
-
-@_jit
 def _nm_top(ln, i, S, F, XC, XR, nfree, evals, max_evals, ftol, phase, out_x, out_ll):
     """The head of Nelder-Mead's loop for lane ln (collar i): done (its best vertex
     written, the lane idle) once its budget is spent or its simplex's values agree within
@@ -1181,14 +1186,10 @@ def motion_nelder_mead(t, z, r, n, x0, lo, hi, step, walk_accel, walk_tau, walk_
             xb = _nm_point(phase, 1, jv, S, XR, XE, XK)
             _nm_clip(xb, lo, hi, ib)
         if a and b:
-            tva = 10.0 ** xa[0]
-            saa = 10.0 ** xa[1]
-            tvb = 10.0 ** xb[0]
-            sab = 10.0 ** xb[1]
-            la, lb = _loglik_pair(t, z, r, ia, n[ia], tva, saa * saa * tva * tva,
-                                  10.0 ** xa[2], walk[0], ib, n[ib], tvb,
-                                  sab * sab * tvb * tvb, 10.0 ** xb[2], walk[1],
-                                  walk_prob, walk_r2, huber)
+            tva, Da, sma = _nm_params(xa)
+            tvb, Db, smb = _nm_params(xb)
+            la, lb = _loglik_pair(t, z, r, ia, n[ia], tva, Da, sma, walk[0], ib, n[ib], tvb,
+                                  Db, smb, walk[1], walk_prob, walk_r2, huber)
             va = -la
             vb = -lb
         elif a:

@@ -28,11 +28,9 @@ def check_csv_text(path, chunk_lines: int = 200_000) -> int:
     raw = path.read_bytes()
     if b'\x00' in raw[:65536]:
         raise HerdInputError(f'{path}: a binary file, not a CSV (NUL bytes)')
-    ascii_ = raw.isascii()
-    if ascii_ and b'"' not in raw:         # the common case: no decoding, no csv module
+    if raw.isascii() and b'"' not in raw:  # the common case: no decoding, no csv module
         end = raw.find(b'\n')
-        header = raw[:end if end >= 0 else len(raw)].decode('ascii').rstrip('\r')
-        width = header.count(',') + 1
+        width = raw[:end if end >= 0 else len(raw)].count(b',') + 1
         if width > 1:
             return _count_rows_unquoted(path, raw, width)
     try:
@@ -53,8 +51,6 @@ def check_csv_text(path, chunk_lines: int = 200_000) -> int:
             if sep in header[0]:
                 raise HerdInputError(f'{path}: line 1: the fields are separated by {name}; '
                                      f'herd-ros reads comma-separated files')
-    if '"' not in text and width > 1 and ascii_:
-        return _count_rows_unquoted(path, raw, width)
     rows = 0
     for row in reader:
         if not row or (len(row) == 1 and not row[0].strip()):
