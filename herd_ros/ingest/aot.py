@@ -48,6 +48,9 @@ EXPORTS = {
     'predict_many': ('void', (('f8', 2, False), ('f8', 3, False), ('f8', 1, False),
                               ('f8', 1, False), ('f8', 1, False), ('f8', 2, True),
                               ('f8', 3, True))),
+    'predict_gathered': ('void', (('i8', 1, False), ('i8', 1, False), ('f8', 1, False),
+                                  ('f8', 2, False), ('f8', 3, False), ('f8', 2, False),
+                                  ('f8', 2, True), ('f8', 3, True))),
     'process_batch': ('void', (
         # the batch: collar, stamp, east, north, status, R
         ('i8', 1, False), ('f8', 1, False), ('f8', 1, False), ('f8', 1, False),
@@ -115,7 +118,8 @@ def source_digest() -> int:
 
 class Kernels:
     """The entry points of :data:`EXPORTS` as attributes (``covariances``,
-    ``predict_many``, ``process_batch``, ``record_states``, ``snapshot``) and ``kind``:
+    ``predict_many``, ``predict_gathered``, ``process_batch``, ``record_states``,
+    ``snapshot``, the motion fit's) and ``kind``:
     ``'aot'`` or ``'jit'``."""
 
     def __init__(self, kind: str, functions: dict):

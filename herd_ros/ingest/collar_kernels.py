@@ -101,9 +101,9 @@ def _motion(tau, accel_std, velocity_tau):
 
 
 @_jit
-def _sandwich(A, P, out):
-    """out = A P Aᵀ (4 × 4), summed in the order of the matrix products."""
-    AP = np.zeros((4, 4))
+def _sandwich(A, P, out, AP):
+    """out = A P Aᵀ (4 × 4), summed in the order of the matrix products (``AP`` a 4 × 4
+    scratch)."""
     for i in range(4):
         for j in range(4):
             s = 0.0
@@ -119,10 +119,12 @@ def _sandwich(A, P, out):
 
 
 @_jit
-def _predict(x, P, tau, accel_std, velocity_tau, xo, Po):
-    """xo = F x, Po = F P Fᵀ + Q (filterpy's predict)."""
+def _predict(x, P, tau, accel_std, velocity_tau, xo, Po, W):
+    """xo = F x, Po = F P Fᵀ + Q (filterpy's predict); ``W`` (≥ 2, 4, 4) scratch (the
+    kernels allocate it once per call, not once per fix)."""
     f_pv, f_vv, pp, pv, vv = _motion(tau, accel_std, velocity_tau)
-    F = np.zeros((4, 4))
+    F = W[0]
+    F[:, :] = 0.0
     F[0, 0] = F[1, 1] = 1.0
     F[0, 2] = F[1, 3] = f_pv
     F[2, 2] = F[3, 3] = f_vv
@@ -131,7 +133,7 @@ def _predict(x, P, tau, accel_std, velocity_tau, xo, Po):
         for j in range(4):
             s += F[i, j] * x[j]
         xo[i] = s
-    _sandwich(F, P, Po)
+    _sandwich(F, P, Po, W[1])
     for i in range(2):
         Po[i, i] += pp
         Po[i, i + 2] += pv
@@ -142,14 +144,37 @@ def _predict(x, P, tau, accel_std, velocity_tau, xo, Po):
 @_jit
 def predict_many(x, P, tau, accel_std, velocity_tau, xo, Po):
     """Each state predicted over its own interval with its own motion model (arrays)."""
+    W = np.empty((4, 4, 4))
     for m in range(x.shape[0]):
-        _predict(x[m], P[m], tau[m], accel_std[m], velocity_tau[m], xo[m], Po[m])
+        _predict(x[m], P[m], tau[m], accel_std[m], velocity_tau[m], xo[m], Po[m], W)
 
 
 @_jit
-def _update(x, P, z0, z1, R):
+def predict_gathered(g, dest, tau, x, P, motion, out_x, out_P):
+    """``out_x[dest[m]]``, ``out_P[dest[m]]`` = state ``g[m]`` of ``x`` (K, 4), ``P``
+    (K, 4, 4) predicted over ``tau[m]`` with its motion model ``motion[g[m]]`` (σ_a, τ_v):
+    :func:`predict_many` of the gathered states, written where they go (the herd clock's
+    ticks, ``herd_clock.states_at``) without the gathered copies; ``out_P`` (·, 2, 2)
+    keeps the position block alone."""
+    W = np.empty((4, 4, 4))
+    xo = np.empty(4)
+    Po = np.empty((4, 4))
+    block = out_P.shape[1]
+    for m in range(g.shape[0]):
+        k = g[m]
+        d = dest[m]
+        _predict(x[k], P[k], tau[m], motion[k, 0], motion[k, 1], xo, Po, W)
+        for i in range(4):
+            out_x[d, i] = xo[i]
+        for i in range(block):
+            for j in range(block):
+                out_P[d, i, j] = Po[i, j]
+
+
+@_jit
+def _update(x, P, z0, z1, R, W):
     """filterpy's update with H = [I 0]: K = P Hᵀ S⁻¹, x += K y,
-    P = (I − KH) P (I − KH)ᵀ + K R Kᵀ (Joseph form), in place."""
+    P = (I − KH) P (I − KH)ᵀ + K R Kᵀ (Joseph form), in place; ``W`` (4, 4, 4) scratch."""
     y0 = z0 - x[0]
     y1 = z1 - x[1]
     s00 = P[0, 0] + R[0, 0]
@@ -158,22 +183,23 @@ def _update(x, P, z0, z1, R):
     s11 = P[1, 1] + R[1, 1]
     det = s00 * s11 - s01 * s10
     i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
-    K = np.empty((4, 2))
+    K = W[0]
     for i in range(4):
         K[i, 0] = P[i, 0] * i00 + P[i, 1] * i10
         K[i, 1] = P[i, 0] * i01 + P[i, 1] * i11
     for i in range(4):
         x[i] += K[i, 0] * y0 + K[i, 1] * y1
-    A = np.zeros((4, 4))          # I − K H
+    A = W[1]                      # I − K H
+    A[:, :] = 0.0
     for i in range(4):
         A[i, i] = 1.0
         A[i, 0] -= K[i, 0]
         A[i, 1] -= K[i, 1]
-    KR = np.empty((4, 2))
+    KR = W[2]
     for i in range(4):
         KR[i, 0] = K[i, 0] * R[0, 0] + K[i, 1] * R[1, 0]
         KR[i, 1] = K[i, 0] * R[0, 1] + K[i, 1] * R[1, 1]
-    _sandwich(A, P, P)
+    _sandwich(A, P, P, W[3])
     for i in range(4):
         for j in range(4):
             P[i, j] += KR[i, 0] * K[j, 0] + KR[i, 1] * K[j, 1]
@@ -293,9 +319,9 @@ def _attach(i, chain, stamp, z0, z1, r, jump, n_cand, cand_jump, cand_len, cand_
 
 @_jit
 def _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t, cand_z, cand_r,
-           accel_std, velocity_tau, v0):
+           accel_std, velocity_tau, v0, W):
     """CollarFilter._adopt: re-initialise on the chain's first fix, update through the
-    rest."""
+    rest (``W``: the scratch of :func:`_predict`)."""
     xi = x[i]
     Pi = P[i]
     xi[0] = cand_z[i, chain, 0, 0]
@@ -312,10 +338,11 @@ def _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t, cand_z, 
     xp = np.empty(4)
     Pp = np.empty((4, 4))
     for k in range(1, cand_len[i, chain]):
-        _predict(xi, Pi, cand_t[i, chain, k] - t[i], accel_std, velocity_tau, xp, Pp)
+        _predict(xi, Pi, cand_t[i, chain, k] - t[i], accel_std, velocity_tau, xp, Pp, W)
         xi[:] = xp
         Pi[:, :] = Pp
-        _update(xi, Pi, cand_z[i, chain, k, 0], cand_z[i, chain, k, 1], cand_r[i, chain, k])
+        _update(xi, Pi, cand_z[i, chain, k, 0], cand_z[i, chain, k, 1], cand_r[i, chain, k],
+                W)
         t[i] = cand_t[i, chain, k]
     n_cand[i] = 0
     ever[i] = True
@@ -348,7 +375,8 @@ def _keep_left(left, i, t, x, P, reacquire, for_chain):
 
 
 @_jit
-def _return_to_left(i, s, z0, z1, r, left, accel_std, velocity_tau, gate, t, x, P, xp, Pp):
+def _return_to_left(i, s, z0, z1, r, left, accel_std, velocity_tau, gate, t, x, P, xp, Pp,
+                    W):
     """CollarFilter._return_to_left: a refused fix inside the gate of the place the track
     left goes back there at once (True; the state updated with the fix)."""
     x0 = np.zeros(4)
@@ -358,11 +386,11 @@ def _return_to_left(i, s, z0, z1, r, left, accel_std, velocity_tau, gate, t, x, 
     P0[0, 0] = left[i, 3]
     P0[1, 0] = P0[0, 1] = left[i, 4]
     P0[1, 1] = left[i, 5]
-    _predict(x0, P0, s - left[i, 0], accel_std, velocity_tau, xp, Pp)
+    _predict(x0, P0, s - left[i, 0], accel_std, velocity_tau, xp, Pp, W)
     d2, det = _mahalanobis2(xp, Pp, z0, z1, r)
     if not d2 <= gate:
         return False
-    _update(xp, Pp, z0, z1, r)
+    _update(xp, Pp, z0, z1, r, W)
     x[i, :] = xp
     P[i, :, :] = Pp
     t[i] = s
@@ -392,6 +420,7 @@ def process_batch(collar, stamp, east, north, status, R,
     xw = np.empty(4)
     Pw = np.empty((4, 4))
     rw = np.empty((2, 2))
+    W = np.empty((4, 4, 4))         # the predicts' and updates' scratch
     keep_P = out_P.shape[0] > 0
     for m in range(collar.shape[0]):
         i = collar[m]
@@ -441,7 +470,7 @@ def process_batch(collar, stamp, east, north, status, R,
                     first = not ever[i]
                     left[i, 0] = np.nan
                     _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
-                           cand_z, cand_r, accel_std[i], velocity_tau[i], v0)
+                           cand_z, cand_r, accel_std[i], velocity_tau[i], v0, W)
                     if first:
                         code = ACCEPTED
                     else:
@@ -469,12 +498,12 @@ def process_batch(collar, stamp, east, north, status, R,
                                     cand_t, cand_z, cand_r, max_speed, cruise_speed,
                                     sprint_s, gate_sigma)
                 else:
-                    _predict(xi, Pi, tau, accel_std[i], velocity_tau[i], xp, Pp)
+                    _predict(xi, Pi, tau, accel_std[i], velocity_tau[i], xp, Pp, W)
                     d2, det = _mahalanobis2(xp, Pp, z0, z1, r)
                     gate_d2 = d2
                     if walk_accel > 0.0:
                         # the walk component of the motion mixture (FilterParams.walk)
-                        _predict(xi, Pi, tau, walk_accel, walk_tau, xw, Pw)
+                        _predict(xi, Pi, tau, walk_accel, walk_tau, xw, Pw, W)
                         rw[0, 0] = r[0, 0] + walk_r2
                         rw[1, 1] = r[1, 1] + walk_r2
                         rw[0, 1] = r[0, 1]
@@ -515,8 +544,8 @@ def process_batch(collar, stamp, east, north, status, R,
                         if d2 > gate and not math.isfinite(left[i, 0]):
                             # taken by the walk component alone: a move it may undo
                             _keep_left(left, i, t, x, P, reacquire, 0.0)
-                        _update(xp, Pp, z0, z1, r)
-                        _update(xw, Pw, z0, z1, rw)
+                        _update(xp, Pp, z0, z1, r, W)
+                        _update(xw, Pw, z0, z1, rw, W)
                         lw = (math.log(walk_prob) - 0.5 * math.log(detw) - 0.5 * d2w) - (
                             math.log1p(-walk_prob) - 0.5 * math.log(det) - 0.5 * d2)
                         ww = 1.0 / (1.0 + math.exp(-lw)) if lw > -700.0 else 0.0
@@ -529,7 +558,7 @@ def process_batch(collar, stamp, east, north, status, R,
                     elif chain < 0:           # accepted: filterpy predict + update
                         xi[:] = xp
                         Pi[:, :] = Pp
-                        _update(xi, Pi, z0, z1, r)
+                        _update(xi, Pi, z0, z1, r, W)
                         t[i] = s
                         n_cand[i] = 0
                         counters[i, C_ACC] += 1
@@ -539,7 +568,7 @@ def process_batch(collar, stamp, east, north, status, R,
                     need = reacquire if cand_jump[i, chain] else confirm
                     if cand_len[i, chain] < need and math.isfinite(left[i, 0]) and \
                             _return_to_left(i, s, z0, z1, r, left, accel_std[i],
-                                            velocity_tau[i], gate, t, x, P, xp, Pp):
+                                            velocity_tau[i], gate, t, x, P, xp, Pp, W):
                         n_cand[i] = 0             # back at the place it left: a burst
                         counters[i, C_ACC] += 1
                         counters[i, C_REINIT] += 1
@@ -558,7 +587,7 @@ def process_batch(collar, stamp, east, north, status, R,
                         else:                 # keep the place the track leaves
                             _keep_left(left, i, t, x, P, reacquire, 1.0)
                         _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
-                               cand_z, cand_r, accel_std[i], velocity_tau[i], v0)
+                               cand_z, cand_r, accel_std[i], velocity_tau[i], v0, W)
                         counters[i, C_REINIT] += 1
                         code = REINITIALISED
         out_code[m] = code
@@ -616,6 +645,7 @@ def record_states(collar, stamp, x, P, motion, next_tick, count, rt, rx, rP, rm)
 def snapshot(tick, count, rt, rx, rP, rm, stale_after, x, P, stale, init):
     """Every collar's state at ``tick`` from its record (the herd clock's snapshot, compiled):
     the last record at or before the tick, predicted to it; NaN past ``stale_after``."""
+    W = np.empty((4, 4, 4))
     for i in range(count.shape[0]):
         k = count[i] - 1
         while k >= 0 and rt[i, k] > tick:
@@ -627,7 +657,7 @@ def snapshot(tick, count, rt, rx, rP, rm, stale_after, x, P, stale, init):
             init[i] = False
             continue
         tau = tick - rt[i, k]
-        _predict(rx[i, k], rP[i, k], tau, rm[i, k, 0], rm[i, k, 1], x[i], P[i])
+        _predict(rx[i, k], rP[i, k], tau, rm[i, k, 0], rm[i, k, 1], x[i], P[i], W)
         init[i] = True
         stale[i] = tau > stale_after
         if stale[i]:

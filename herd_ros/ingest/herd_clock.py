@@ -113,9 +113,10 @@ def states_at(timelines, ticks, position_cov_only: bool = False):
     P (N, T, 4, 4), stale (N, T), initialised (N, T)); with ``position_cov_only`` P is the
     position block alone, (N, T, 2, 2). Each tick takes the timeline's state after its last
     accepted fix at or before it, predicted to the tick with that state's motion model; the
-    predictions of every timeline are one compiled call over all of them, split over the
-    collar threads (:mod:`~herd_ros.ingest.collar_threads`: each state's prediction is its
-    own, so the split never changes a number)."""
+    predictions of every timeline are one compiled call over all of them that writes each
+    where it goes (``predict_gathered``), split over the collar threads
+    (:mod:`~herd_ros.ingest.collar_threads`: each state's prediction is its own, so the
+    split never changes a number)."""
     ticks = np.asarray(ticks, dtype=float)
     N, T = len(timelines), len(ticks)
     x = np.full((N, T, 4), np.nan)
@@ -133,23 +134,28 @@ def states_at(timelines, ticks, position_cov_only: bool = False):
     g = (idx + offsets[:, None])[init]                 # each (agent, tick)'s state
     t_all = _joined([np.asarray(tl.t, dtype=float) for tl in timelines])
     tau = np.broadcast_to(ticks, (N, T))[init] - t_all[g]
-    x0 = _joined([np.asarray(tl.x, dtype=float).reshape(-1, 4) for tl in timelines])[g]
-    P0 = _joined([np.asarray(tl.P, dtype=float).reshape(-1, 4, 4) for tl in timelines])[g]
+    x_all = _joined([np.asarray(tl.x, dtype=float).reshape(-1, 4) for tl in timelines])
+    P_all = _joined([np.asarray(tl.P, dtype=float).reshape(-1, 4, 4) for tl in timelines])
     motion = _joined([
         np.column_stack([np.full(len(tl.t), float(tl.accel_std)),
                          np.full(len(tl.t), float(tl.velocity_tau))])
         if tl.motion is None else np.asarray(tl.motion, dtype=float).reshape(-1, 2)
-        for tl in timelines])[g]
-    xs, Ps = np.empty_like(x0), np.empty_like(P0)
+        for tl in timelines])
+    if collar_bank.AVAILABLE:
+        # compiled: each state predicted and written to its (agent, tick) in one pass
+        dest = np.flatnonzero(init.reshape(-1))
+        x_all, P_all, motion = (np.ascontiguousarray(a, dtype=float)
+                                for a in (x_all, P_all, motion))
+        flat_x, flat_P = x.reshape(N * T, 4), P.reshape(N * T, *P.shape[2:])
 
-    def part(sl):
-        def run():
-            xs[sl], Ps[sl] = predict_states(x0[sl], P0[sl], tau[sl], motion[sl, 0],
-                                            motion[sl, 1])
-        return run
+        def part(sl):
+            return lambda: collar_bank.KERNELS.predict_gathered(
+                g[sl], dest[sl], tau[sl], x_all, P_all, motion, flat_x, flat_P)
 
-    collar_threads.run(part(sl) for sl in collar_threads.split(np.ones(len(g))))
-    x[init], P[init] = xs, (Ps[:, :2, :2] if position_cov_only else Ps)
+        collar_threads.run(part(sl) for sl in collar_threads.split(np.ones(len(g))))
+    else:
+        xs, Ps = predict_states(x_all[g], P_all[g], tau, motion[g, 0], motion[g, 1])
+        x[init], P[init] = xs, (Ps[:, :2, :2] if position_cov_only else Ps)
     stale_after = np.array([float(tl.stale_after) for tl in timelines])
     stale[init] = tau > np.broadcast_to(stale_after[:, None], (N, T))[init]
     x[stale] = np.nan
