@@ -209,6 +209,50 @@ def test_rts_on_ticks_at_fix_times_equals_filterpy_rts():
     assert np.all(np.trace(Pm[:, :2, :2], axis1=1, axis2=2) > 0)
 
 
+def test_rts_timeline_is_filterpys_rts_segment_by_segment_compiled_or_not(monkeypatch):
+    """Two filter segments (a re-initialisation between them): each smoothed on its own, as
+    filterpy's RTS of that segment alone gives it (independent code), by the compiled
+    backward pass and by the numpy loop used where the kernels are absent."""
+    from filterpy.kalman import KalmanFilter
+    from herd_ros.ingest import collar_bank
+    from herd_ros.ingest.collar_filter import process_noise, transition
+    from herd_ros.ingest.herd_clock import StateTimeline
+    from herd_ros.ingest.smoothing import rts_timeline
+    rng = np.random.default_rng(7)
+    parts, expect = [], []
+    start = 0.0
+    for seg, n in enumerate((40, 25)):
+        f = CollarFilter(PARAMS)
+        rec = TimelineRecorder(f)
+        t = start + np.cumsum(rng.uniform(0.5, 3.0, n))
+        for tk in t:
+            f.update(tk, *(rng.normal(0, 2, 2) + [0.2 * tk, -0.1 * tk]))
+            rec.record()
+        tl = rec.timeline()
+        tau = np.concatenate([[0], np.diff(tl.t)])
+        xs, Ps, _, _ = KalmanFilter(4, 2).rts_smoother(tl.x, tl.P, transition(tau),
+                                                       process_noise(tau, PARAMS.accel_std))
+        parts.append((tl, np.full(len(tl.t), seg)))
+        expect.append((xs, Ps))
+        start = t[-1] + 500.0
+    joined = StateTimeline(np.concatenate([p[0].t for p in parts]),
+                           np.concatenate([p[0].x for p in parts]),
+                           np.concatenate([p[0].P for p in parts]), PARAMS.accel_std,
+                           PARAMS.stale_after, np.concatenate([p[1] for p in parts]))
+    want_x = np.concatenate([e[0] for e in expect])
+    want_P = np.concatenate([e[1] for e in expect])
+    for compiled in (True, False):
+        if not compiled:
+            monkeypatch.setattr(collar_bank, 'AVAILABLE', False)
+        x, P = rts_timeline(joined)
+        np.testing.assert_allclose(x, want_x, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(P, want_P, rtol=1e-9, atol=1e-10)
+    # a segment's last state has no future: it stays filtered
+    last = len(parts[0][0].t) - 1
+    np.testing.assert_array_equal(x[last], joined.x[last])
+    assert not np.array_equal(x[last - 1], joined.x[last - 1])
+
+
 def test_gaussian_fir_taps_and_response():
     b = gaussian_fir_taps()
     assert len(b) == 30 and b.sum() == pytest.approx(1.0)

@@ -71,6 +71,9 @@ EXPORTS = {
         # out: code, d2, x, P, segment
         ('i1', 1, True), ('f8', 1, True), ('f8', 2, True), ('f8', 3, True),
         ('i8', 1, True))),
+    'rts_backward': ('void', (('b1', 1, False), ('f8', 2, False), ('f8', 2, False),
+                              ('f8', 3, False), ('f8', 3, False), ('f8', 3, False),
+                              ('f8', 2, True), ('f8', 3, True))),
     'record_states': ('i8', (('i8', 1, False), ('f8', 1, False), ('f8', 2, False),
                              ('f8', 3, False), ('f8', 2, False), 'f8', ('i8', 1, True),
                              ('f8', 2, True), ('f8', 3, True), ('f8', 4, True),

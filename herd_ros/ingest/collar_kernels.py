@@ -611,6 +611,48 @@ def process_batch(collar, stamp, east, north, status, R,
                 out_P[m] = np.nan
 
 
+# -- the RTS smoother's backward pass (smoothing.rts_timeline) ----------------------------
+
+
+@_jit
+def rts_backward(link, x, Fx, P, Pp, J, xs, Ps):
+    """The backward recursion of the Rauch-Tung-Striebel smoother (Rauch, Tung & Striebel
+    1965; Särkkä 2013, *Bayesian Filtering and Smoothing*, Theorem 8.2), from the last
+    state back, each step k where ``link[k]`` (state k + 1 follows state k in its
+    segment)::
+
+        x̂_k = x_k + J_k (x̂_{k+1} − F_k x_k),   P̂_k = P_k + J_k (P̂_{k+1} − P⁻_{k+1}) J_kᵀ
+
+    ``Fx`` (K − 1, 4) = F_k x_k, ``Pp`` the priors P⁻_{k+1}, ``J`` the gains (K − 1, 4, 4);
+    ``xs``, ``Ps`` (K, ·) hold the filtered states on entry (a segment's last state stays
+    filtered) and the smoothed ones on return."""
+    D = np.empty((4, 4))
+    JD = np.empty((4, 4))
+    for k in range(link.shape[0] - 1, -1, -1):
+        if not link[k]:
+            continue
+        for i in range(4):
+            acc = 0.0
+            for j in range(4):
+                acc += J[k, i, j] * (xs[k + 1, j] - Fx[k, j])
+            xs[k, i] = x[k, i] + acc
+        for i in range(4):
+            for j in range(4):
+                D[i, j] = Ps[k + 1, i, j] - Pp[k, i, j]
+        for i in range(4):
+            for j in range(4):
+                acc = 0.0
+                for m in range(4):
+                    acc += J[k, i, m] * D[m, j]
+                JD[i, j] = acc
+        for i in range(4):
+            for j in range(4):
+                acc = 0.0
+                for m in range(4):
+                    acc += JD[i, m] * J[k, j, m]
+                Ps[k, i, j] = P[k, i, j] + acc
+
+
 # -- the streaming herd clock (herd_clock.BatchHerdClock) ---------------------------------
 
 

@@ -1,8 +1,9 @@
 """Offline smoothing on the herd clock: RTS smoother or the paper's causal Gaussian FIR.
 
 * :func:`rts_on_ticks` — Rauch-Tung-Striebel (Rauch, Tung & Striebel, AIAA J. 3(8), 1965) run
-  with :meth:`filterpy.kalman.KalmanFilter.rts_smoother` over each filter segment's accepted
-  fixes, then carried to the ticks between fixes *within the filter's own model*: over the
+  over each filter segment's accepted fixes (:func:`rts_timeline`: what
+  :meth:`filterpy.kalman.KalmanFilter.rts_smoother` computes, its backward pass compiled),
+  then carried to the ticks between fixes *within the filter's own model*: over the
   interval (t_k, t_{k+1}) the discrete white-noise acceleration model has one constant
   acceleration a, so x_t = F(τ) x_k + G(τ) a and x_{k+1} = F(Δ) x_k + G(Δ) a share it and
 
@@ -27,8 +28,6 @@
 from __future__ import annotations
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
-from scipy.signal import lfilter, lfilter_zi
 
 from herd_ros.ingest.collar_filter import process_noise, transition
 from herd_ros.ingest.herd_clock import StateTimeline
@@ -49,6 +48,7 @@ def gaussian_fir(positions, n: int = 30, sigma: float = 6.0) -> np.ndarray:
     The filter starts from rest at the first sample (history = ``positions[0]``), so a
     constant input passes unchanged. Must be finite (trim NaN ends first).
     """
+    from scipy.signal import lfilter, lfilter_zi      # (lazily: only the FIR needs it)
     p = np.asarray(positions, dtype=float)
     b = gaussian_fir_taps(n, sigma)
     if len(p) == 0:
@@ -168,22 +168,35 @@ def _moments(x, P, parts):
 
 def rts_timeline(timeline: StateTimeline) -> tuple[np.ndarray, np.ndarray]:
     """RTS-smoothed states at the timeline's own times, segment by segment:
-    (x (K, 4), P (K, 4, 4))."""
-    xs = timeline.x.copy()
-    Ps = timeline.P.copy()
-    kf = KalmanFilter(dim_x=4, dim_z=2)
-    seg = timeline.segment
-    for s in np.unique(seg):
-        idx = np.flatnonzero(seg == s)
-        if len(idx) < 2:
-            continue
-        # filterpy's step k + 1 carries state k: by the motion state k moved with
-        F, Q = _moment_steps(timeline.x[idx[:-1]], timeline.P[idx[:-1]],
-                             np.diff(timeline.t[idx]), _components(timeline, idx[:-1]))
-        Fs = np.concatenate([np.eye(4)[None], F])
-        Qs = np.concatenate([np.zeros((1, 4, 4)), Q])
-        x_s, P_s, _, _ = kf.rts_smoother(timeline.x[idx], timeline.P[idx], Fs, Qs)
-        xs[idx], Ps[idx] = x_s, P_s
+    (x (K, 4), P (K, 4, 4)). The priors and gains of every step at once
+    (``P⁻_{k+1} = F_k P_k F_kᵀ + Q_k``, ``J_k = P_k F_kᵀ (P⁻_{k+1})⁻¹``, on the moments of
+    the motion state k moved with, :func:`_moment_steps`), then the backward recursion
+    (:func:`herd_ros.ingest.collar_kernels.rts_backward`, compiled; a numpy loop where the
+    kernels are absent) — what :meth:`filterpy.kalman.KalmanFilter.rts_smoother` computes
+    step by step (``test_herd_clock.py`` checks it against filterpy)."""
+    x = np.ascontiguousarray(timeline.x, dtype=float).reshape(-1, 4)
+    P = np.ascontiguousarray(timeline.P, dtype=float).reshape(-1, 4, 4)
+    xs, Ps = x.copy(), P.copy()
+    K = len(x)
+    if K < 2:
+        return xs, Ps
+    seg = np.asarray(timeline.segment)
+    link = np.ascontiguousarray(seg[1:] == seg[:-1])
+    if not link.any():
+        return xs, Ps
+    # step k carries state k by the motion it moved with (steps across segments unused)
+    F, Q = _moment_steps(x[:-1], P[:-1], np.diff(timeline.t),
+                         _components(timeline, np.arange(K - 1)))
+    Fx = np.ascontiguousarray(_mv(F, x[:-1]))
+    Pp = np.ascontiguousarray(_sandwich(F, P[:-1], F) + Q)
+    J = np.ascontiguousarray(np.swapaxes(np.linalg.solve(Pp, F @ P[:-1]), -1, -2))
+    from herd_ros.ingest import collar_bank
+    if collar_bank.AVAILABLE:
+        collar_bank.KERNELS.rts_backward(link, x, Fx, P, Pp, J, xs, Ps)
+        return xs, Ps
+    for k in np.flatnonzero(link)[::-1]:
+        xs[k] = x[k] + J[k] @ (xs[k + 1] - Fx[k])
+        Ps[k] = P[k] + J[k] @ (Ps[k + 1] - Pp[k]) @ J[k].T
     return xs, Ps
 
 
