@@ -221,9 +221,9 @@ def fixed_lag_timeline(timeline: StateTimeline, lag: int) -> tuple[np.ndarray, n
         return xs, Ps
     F, Q = _moment_steps(x[:-1], P[:-1], np.diff(timeline.t),
                          _components(timeline, np.arange(K - 1)))
-    xp = np.einsum('kij,kj->ki', F, x[:-1])
-    Pp = np.einsum('kij,kjl,kml->kim', F, P[:-1], F) + Q
-    J = np.swapaxes(np.linalg.solve(Pp, np.einsum('kij,klj->kil', F, P[:-1])), -1, -2)
+    xp = _mv(F, x[:-1])
+    Pp = _sandwich(F, P[:-1], F) + Q
+    J = np.swapaxes(np.linalg.solve(Pp, F @ np.swapaxes(P[:-1], -1, -2)), -1, -2)
     seg = timeline.segment
     # the last state each k may use: k + lag, within k's segment
     seg_end = np.searchsorted(seg, seg, side='right') - 1    # segments never decrease
@@ -235,8 +235,8 @@ def fixed_lag_timeline(timeline: StateTimeline, lag: int) -> tuple[np.ndarray, n
         if not on.any():
             continue
         ii = i[on]
-        cur_x[on] = x[ii] + np.einsum('kij,kj->ki', J[ii], cur_x[on] - xp[ii])
-        cur_P[on] = P[ii] + np.einsum('kij,kjl,kml->kim', J[ii], cur_P[on] - Pp[ii], J[ii])
+        cur_x[on] = x[ii] + _mv(J[ii], cur_x[on] - xp[ii])
+        cur_P[on] = P[ii] + _sandwich(J[ii], cur_P[on] - Pp[ii], J[ii])
     return cur_x, cur_P
 
 
