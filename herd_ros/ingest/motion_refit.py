@@ -129,9 +129,8 @@ class MotionRefitter:
         seen = self.seen if start_counts is None else start_counts
         order = np.argsort(collar, kind='stable')
         c = collar[order]
-        first = np.r_[True, c[1:] != c[:-1]] if len(c) else np.zeros(0, bool)
-        start = np.flatnonzero(first)
-        rank = np.arange(len(c)) - np.repeat(start, np.diff(np.r_[start, len(c)]))
+        start, end = _runs(c)
+        rank = np.arange(len(c)) - np.repeat(start, end - start)
         counts = np.empty(len(c), np.int64)
         counts[order] = seen[c] + rank + 1
         return refit_due(counts, self.config.first, self.config.max_interval)
@@ -149,8 +148,9 @@ class MotionRefitter:
         c = collar[rows]
         order = np.argsort(c, kind='stable')
         rows, c = rows[order], c[order]
-        start = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
-        sizes = np.diff(np.r_[start, len(c)])
+        start, end = _runs(c)
+        sizes = end - start
+        u = c[start]                                       # each collar once, in order
         rank = np.arange(len(c)) - np.repeat(start, sizes)
         from_end = np.repeat(sizes, sizes) - rank          # 1 for a collar's last fix
         keep = from_end <= W                               # older ones would be overwritten
@@ -160,7 +160,6 @@ class MotionRefitter:
         self.z[c, slot, 0] = np.asarray(east, float)[rows]
         self.z[c, slot, 1] = np.asarray(north, float)[rows]
         self.r[c, slot] = np.asarray(var, float)[rows]
-        u = c[np.r_[True, c[1:] != c[:-1]]]
         self.head[u] = (self.head[u] + sizes) % W
         self.count[u] = np.minimum(self.count[u] + sizes, W)
 
@@ -493,6 +492,16 @@ def stabbing_cuts(lo, hi) -> list[int]:
     return cuts
 
 
+def _runs(c) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, ends) of the runs of equal values of the sorted (M,) array ``c``:
+    ``c[starts[k]:ends[k]]`` is the k-th (np.concatenate, not np.r_: a batch's hot path)."""
+    m = len(c)
+    if not m:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    starts = np.flatnonzero(np.concatenate(([True], c[1:] != c[:-1])))
+    return starts, np.concatenate((starts[1:], [m]))
+
+
 def _neighbours(collar) -> tuple[np.ndarray, np.ndarray]:
     """(M,) the next position of each fix's collar in the batch (M if none) and the
     previous one (-1 if none)."""
@@ -521,17 +530,23 @@ def _refit_plan(refitter: MotionRefitter, collar, stamp):
     lag = float(refitter.config.lag_s)
     order = np.argsort(collar, kind='stable')
     c_sorted = collar[order]
-    starts = np.flatnonzero(np.r_[True, c_sorted[1:] != c_sorted[:-1]]) if m else []
+    starts, ends = _runs(c_sorted)
     first = {}
-    for k, s0 in enumerate(starts):
-        end = starts[k + 1] if k + 1 < len(starts) else m
+    # a collar with one fix in the batch (the live node's common case: a batch of a few
+    # milliseconds) needs no cut: nothing of it comes before that fix
+    single = ends - starts == 1
+    scheduled = refitter.scheduled
+    for c, q in zip(c_sorted[starts[single]].tolist(), order[starts[single]].tolist()):
+        if scheduled[c] or due[q]:
+            first[c] = q
+    for s0, end in zip(starts[~single].tolist(), ends[~single].tolist()):
         c = int(c_sorted[s0])
         pos = order[s0:end]                     # the collar's positions, in batch order
         points = pos[due[pos]]
-        if not refitter.scheduled[c] and not len(points):
+        if not scheduled[c] and not len(points):
             continue
         first[c] = int(pos[0])
-        times = [(e.apply_at, -1) for e in refitter.scheduled[c]]
+        times = [(e.apply_at, -1) for e in scheduled[c]]
         times += [(float(stamp[q]) + lag, int(q)) for q in points]
         st = stamp[pos]
         for apply_at, origin in times:
