@@ -343,3 +343,16 @@ def test_a_grid_of_points_gives_what_each_point_alone_gives():
                                                        D[:, g:g + 1], sm[:, g:g + 1], walk)
                                      for g in range(G)])
             assert np.array_equal(grid, alone)
+
+
+def test_speed_std_is_the_stationary_one_and_undefined_at_the_constant_velocity_end():
+    """√(D / 2τ_v) by hand; a fit at the constant-velocity end (τ_v at TAU_MAX) has none:
+    the table shows ``cv end`` rather than tens of m/s."""
+    from herd_ros.ingest.motion_fit import TAU_MAX
+    from herd_ros.ingest.pipeline import format_motion_fits
+    walk = MotionFit('iou', 10.0, 0.5, 1.0, -1.0, 2.0, 50)
+    assert walk.speed_std == pytest.approx(math.sqrt(0.5 / 20.0), rel=1e-12)
+    cv = MotionFit('iou', TAU_MAX, 3.4e8, 0.5, -1.0, 2.0, 200)
+    assert math.isnan(cv.speed_std)
+    table = format_motion_fits({'a': walk, 'b': cv})
+    assert 'cv end' in table.splitlines()[2] and 'cv end' not in table.splitlines()[1]

@@ -105,7 +105,12 @@ class MotionFit:
 
     @property
     def speed_std(self) -> float:
-        """Stationary velocity std per axis (m/s): ``√(D / (2 τ_v))``."""
+        """Stationary velocity std per axis (m/s): ``√(D / (2 τ_v))``; NaN for a fit at the
+        constant-velocity end (τ_v at :data:`TAU_MAX`): the window showed no end to the
+        velocity's persistence, so it says nothing of a stationary speed (√(D/2τ_v) there
+        reads tens of m/s for a walking baboon)."""
+        if self.velocity_tau >= (1.0 - 1e-6) * TAU_MAX:
+            return float('nan')
         return math.sqrt(self.diffusion / (2.0 * self.velocity_tau))
 
 

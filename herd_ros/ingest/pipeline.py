@@ -739,9 +739,10 @@ def lost_most(counters: dict, k: int) -> dict:
 def format_motion_fits(fits: dict) -> str:
     """A small table of each collar's last fitted motion model: the model chosen (the IOU
     where it is the likelier by AIC and the closer one-step predictor, else the random walk),
-    τ_v (s), the long-run diffusion D (m²/s per axis), the speed std (m/s per axis), the
-    fix std σ_m (m; ``given`` where the fixes carried a covariance) and the fixes fitted;
-    ``prior`` for a collar with too few fixes to fit."""
+    τ_v (s), the long-run diffusion D (m²/s per axis), the speed std (m/s per axis;
+    ``cv end`` for a fit at the constant-velocity end, where it is not defined), the fix std
+    σ_m (m; ``given`` where the fixes carried a covariance) and the fixes fitted; ``prior``
+    for a collar with too few fixes to fit."""
     width = max([len('agent')] + [len(a) for a in fits])
     lines = [f'{"agent":<{width}}  {"motion":>6}  {"tau_v_s":>9}  {"D_m2_s":>9}  '
              f'{"speed_ms":>8}  {"fix_std_m":>9}  {"fixes":>5}']
@@ -750,6 +751,7 @@ def format_motion_fits(fits: dict) -> str:
             lines.append(f'{agent:<{width}}  {"prior":>6}')
             continue
         std = f'{f.position_std:9.2f}' if np.isfinite(f.position_std) else f'{"given":>9}'
+        speed = f'{f.speed_std:8.3g}' if np.isfinite(f.speed_std) else f'{"cv end":>8}'
         lines.append(f'{agent:<{width}}  {f.model:>6}  {f.velocity_tau:9.3g}  '
-                     f'{f.diffusion:9.3g}  {f.speed_std:8.3g}  {std}  {f.n_fixes:>5}')
+                     f'{f.diffusion:9.3g}  {speed}  {std}  {f.n_fixes:>5}')
     return '\n'.join(lines)
