@@ -184,19 +184,21 @@ def rts_timeline(timeline: StateTimeline) -> tuple[np.ndarray, np.ndarray]:
     link = np.ascontiguousarray(seg[1:] == seg[:-1])
     if not link.any():
         return xs, Ps
-    # step k carries state k by the motion it moved with (steps across segments unused)
-    F, Q = _moment_steps(x[:-1], P[:-1], np.diff(timeline.t),
-                         _components(timeline, np.arange(K - 1)))
-    Fx = np.ascontiguousarray(_mv(F, x[:-1]))
-    Pp = np.ascontiguousarray(_sandwich(F, P[:-1], F) + Q)
-    J = np.ascontiguousarray(np.swapaxes(np.linalg.solve(Pp, F @ P[:-1]), -1, -2))
+    # step k carries state k by the motion it moved with (only the steps within a segment)
+    k = np.flatnonzero(link)
+    F, Q = _moment_steps(x[k], P[k], timeline.t[k + 1] - timeline.t[k],
+                         _components(timeline, k))
+    Fx, Pp, J = np.zeros((K - 1, 4)), np.zeros((K - 1, 4, 4)), np.zeros((K - 1, 4, 4))
+    Fx[k] = _mv(F, x[k])
+    Pp[k] = _sandwich(F, P[k], F) + Q
+    J[k] = np.swapaxes(np.linalg.solve(Pp[k], F @ P[k]), -1, -2)
     from herd_ros.ingest import collar_bank
     if collar_bank.AVAILABLE:
         collar_bank.KERNELS.rts_backward(link, x, Fx, P, Pp, J, xs, Ps)
         return xs, Ps
-    for k in np.flatnonzero(link)[::-1]:
-        xs[k] = x[k] + J[k] @ (xs[k + 1] - Fx[k])
-        Ps[k] = P[k] + J[k] @ (Ps[k + 1] - Pp[k]) @ J[k].T
+    for i in k[::-1]:
+        xs[i] = x[i] + J[i] @ (xs[i + 1] - Fx[i])
+        Ps[i] = P[i] + J[i] @ (Ps[i + 1] - Pp[i]) @ J[i].T
     return xs, Ps
 
 
