@@ -112,3 +112,19 @@ def test_bag_errors(tmp_path):
         read_fix_bag(tmp_path / 's')
     with pytest.raises(HerdInputError, match='already exists'):
         BagWriter(tmp_path / 's')
+
+
+def test_a_fix_bag_with_a_broken_navsatfix_is_one_clear_error(tmp_path):
+    """A message on a fix topic that is not a NavSatFix (cut short): one error naming the
+    message, its topic and receive time, and how many there are."""
+    from herd_ros.io.bags import NAVSATFIX, navsatfix
+    store = typestore()
+    good = store.serialize_cdr(navsatfix(store, 'a', 10.0, 48.1, 11.5, 500.0), NAVSATFIX)
+    with BagWriter(tmp_path / 'b') as bag:
+        bag.add_topic('/herd/a/fix', NAVSATFIX)
+        bag.write_raw('/herd/a/fix', 10_000_000_000, good)
+        bag.write_raw('/herd/a/fix', 11_000_000_000, good[:20])
+    with pytest.raises(HerdInputError, match=r'message 2 on /herd/a/fix \(received at '
+                                             r'11\.000 s\) is not a readable NavSatFix.*1 '
+                                             r'such message'):
+        read_fix_bag(tmp_path / 'b')

@@ -352,26 +352,30 @@ def read_fix_bag(path, agents=None):
             topics = ', '.join(sorted({c.topic for c in reader.connections})) or 'none'
             raise HerdInputError(f'{path}: no {NAVSATFIX} topic /herd/<agent>/fix in the bag '
                                  f'(topics: {topics})')
-        rows = {k: [] for k in ('time', 'agent', 'lat', 'lon', 'alt', 'status',
-                                'position_covariance_type', 'cov_ee', 'cov_en', 'cov_nn',
-                                'receive_time')}
+        agent_of = {c.id: FIX_TOPIC_RE.match(c.topic)['agent'] for c in conns}
+        topic_of = {c.id: c.topic for c in conns}
+        ids, stamps_ns, raws = [], [], []
         for conn, t_ns, raw in reader.messages(connections=conns):
-            msg = reader.deserialize(raw, conn.msgtype)
-            cov = np.asarray(msg.position_covariance, dtype=float)
-            rows['time'].append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
-            rows['agent'].append(FIX_TOPIC_RE.match(conn.topic)['agent'])
-            rows['lat'].append(msg.latitude)
-            rows['lon'].append(msg.longitude)
-            rows['alt'].append(msg.altitude)
-            rows['status'].append(int(msg.status.status))
-            rows['position_covariance_type'].append(int(msg.position_covariance_type))
-            rows['cov_ee'].append(cov[0])
-            rows['cov_en'].append(cov[1])
-            rows['cov_nn'].append(cov[4])
-            rows['receive_time'].append(t_ns * 1e-9)
+            ids.append(conn.id)
+            stamps_ns.append(t_ns)
+            raws.append(bytes(raw))
     finally:
         reader.close()
-    return pd.DataFrame(rows)
+    # every message at once (herd_ros.io.cdr, the node's decoder: the same numbers as
+    # rosbags' deserializer, ~20 × faster than it message by message)
+    from herd_ros.io.cdr import decode_navsatfixes
+    fixes, bad = decode_navsatfixes(raws)
+    if bad:
+        k, reason = bad[0]
+        raise HerdInputError(f'{path}: message {k + 1} on {topic_of[ids[k]]} (received at '
+                             f'{stamps_ns[k] * 1e-9:.3f} s) is not a readable NavSatFix '
+                             f'({reason}); {len(bad)} such message(s) in all')
+    return pd.DataFrame({
+        'time': fixes.stamp, 'agent': [agent_of[i] for i in ids], 'lat': fixes.lat,
+        'lon': fixes.lon, 'alt': fixes.alt, 'status': fixes.status,
+        'position_covariance_type': fixes.cov_type, 'cov_ee': fixes.cov[:, 0],
+        'cov_en': fixes.cov[:, 1], 'cov_nn': fixes.cov[:, 4],
+        'receive_time': np.asarray(stamps_ns, dtype=np.int64) * 1e-9})
 
 
 @dataclass
