@@ -36,14 +36,6 @@ from herd_ros.ingest.collar_filter import CollarFilter, predict_state
 from herd_ros.trajectory import HerdTrajectory
 
 
-def predict_states(x, P, tau, accel_std, velocity_tau=0.0):
-    """:func:`~herd_ros.ingest.collar_filter.predict_state` over many states: compiled
-    (:func:`herd_ros.ingest.collar_bank.predict_states`) where the kernels are."""
-    if collar_bank.AVAILABLE and np.ndim(x) == 2:
-        return collar_bank.predict_states(x, P, tau, accel_std, velocity_tau)
-    return predict_state(x, P, tau, accel_std, velocity_tau)
-
-
 def first_tick_index(t: float, dt: float) -> int:
     """Index k of the first tick ``k·dt`` at or after ``t``."""
     k = math.ceil(t / dt)
@@ -154,7 +146,7 @@ def states_at(timelines, ticks, position_cov_only: bool = False):
 
         collar_threads.run(part(sl) for sl in collar_threads.split(np.ones(len(g))))
     else:
-        xs, Ps = predict_states(x_all[g], P_all[g], tau, motion[g, 0], motion[g, 1])
+        xs, Ps = predict_state(x_all[g], P_all[g], tau, motion[g, 0], motion[g, 1])
         x[init], P[init] = xs, (Ps[:, :2, :2] if position_cov_only else Ps)
     stale_after = np.array([float(tl.stale_after) for tl in timelines])
     stale[init] = tau > np.broadcast_to(stale_after[:, None], (N, T))[init]

@@ -166,11 +166,22 @@ def _moments(x, P, parts):
     return Fbar, 0.5 * (Qbar + np.swapaxes(Qbar, -1, -2))
 
 
+def _backward_steps(timeline: StateTimeline, x, P, k):
+    """What the backward recursions need of the steps k → k + 1 (``k`` indices): the
+    prior's mean ``F_k x_k`` and covariance ``P⁻_{k+1} = F_k P_k F_kᵀ + Q_k`` and the gain
+    ``J_k = P_k F_kᵀ (P⁻_{k+1})⁻¹``, each step by the motion state k moved with, on the
+    moments of a mixture (:func:`_moment_steps`)."""
+    F, Q = _moment_steps(x[k], P[k], timeline.t[k + 1] - timeline.t[k],
+                         _components(timeline, k))
+    Pp = _sandwich(F, P[k], F) + Q
+    J = np.swapaxes(np.linalg.solve(Pp, F @ np.swapaxes(P[k], -1, -2)), -1, -2)
+    return _mv(F, x[k]), Pp, J
+
+
 def rts_timeline(timeline: StateTimeline) -> tuple[np.ndarray, np.ndarray]:
     """RTS-smoothed states at the timeline's own times, segment by segment:
     (x (K, 4), P (K, 4, 4)). The priors and gains of every step at once
-    (``P⁻_{k+1} = F_k P_k F_kᵀ + Q_k``, ``J_k = P_k F_kᵀ (P⁻_{k+1})⁻¹``, on the moments of
-    the motion state k moved with, :func:`_moment_steps`), then the backward recursion
+    (:func:`_backward_steps`), then the backward recursion
     (:func:`herd_ros.ingest.collar_kernels.rts_backward`, compiled; a numpy loop where the
     kernels are absent) — what :meth:`filterpy.kalman.KalmanFilter.rts_smoother` computes
     step by step (``test_herd_clock.py`` checks it against filterpy)."""
@@ -184,14 +195,10 @@ def rts_timeline(timeline: StateTimeline) -> tuple[np.ndarray, np.ndarray]:
     link = np.ascontiguousarray(seg[1:] == seg[:-1])
     if not link.any():
         return xs, Ps
-    # step k carries state k by the motion it moved with (only the steps within a segment)
+    # only the steps within a segment
     k = np.flatnonzero(link)
-    F, Q = _moment_steps(x[k], P[k], timeline.t[k + 1] - timeline.t[k],
-                         _components(timeline, k))
     Fx, Pp, J = np.zeros((K - 1, 4)), np.zeros((K - 1, 4, 4)), np.zeros((K - 1, 4, 4))
-    Fx[k] = _mv(F, x[k])
-    Pp[k] = _sandwich(F, P[k], F) + Q
-    J[k] = np.swapaxes(np.linalg.solve(Pp[k], F @ P[k]), -1, -2)
+    Fx[k], Pp[k], J[k] = _backward_steps(timeline, x, P, k)
     from herd_ros.ingest import collar_bank
     if collar_bank.AVAILABLE:
         collar_bank.KERNELS.rts_backward(link, x, Fx, P, Pp, J, xs, Ps)
@@ -221,11 +228,7 @@ def fixed_lag_timeline(timeline: StateTimeline, lag: int) -> tuple[np.ndarray, n
     xs, Ps = x.copy(), P.copy()
     if K < 2 or lag == 0:
         return xs, Ps
-    F, Q = _moment_steps(x[:-1], P[:-1], np.diff(timeline.t),
-                         _components(timeline, np.arange(K - 1)))
-    xp = _mv(F, x[:-1])
-    Pp = _sandwich(F, P[:-1], F) + Q
-    J = np.swapaxes(np.linalg.solve(Pp, F @ np.swapaxes(P[:-1], -1, -2)), -1, -2)
+    xp, Pp, J = _backward_steps(timeline, x, P, np.arange(K - 1))
     seg = timeline.segment
     # the last state each k may use: k + lag, within k's segment
     seg_end = np.searchsorted(seg, seg, side='right') - 1    # segments never decrease
