@@ -253,6 +253,33 @@ def test_rts_timeline_is_filterpys_rts_segment_by_segment_compiled_or_not(monkey
     assert not np.array_equal(x[last - 1], joined.x[last - 1])
 
 
+def test_the_clock_without_compiled_kernels_gives_the_same_states(monkeypatch):
+    """Timelines whose states carry different motion models (refitted collars): the numpy
+    path (no kernels) predicts each state with its own model, as the compiled one does."""
+    from herd_ros.ingest import collar_bank
+    from herd_ros.ingest.herd_clock import StateTimeline, states_at
+    rng = np.random.default_rng(3)
+    tls = []
+    for n in (30, 45):
+        f = CollarFilter(PARAMS)
+        rec = TimelineRecorder(f)
+        for tk in np.cumsum(rng.uniform(0.5, 3.0, n)):
+            f.update(tk, *(rng.normal(0, 2, 2) + [0.2 * tk, 0.0]))
+            rec.record()
+        tl = rec.timeline()
+        K = len(tl.t)
+        motion = np.column_stack([np.where(np.arange(K) < K // 2, 0.05, 0.3),
+                                  np.where(np.arange(K) < K // 3, 0.0, 60.0)])
+        tls.append(StateTimeline(tl.t, tl.x, tl.P, PARAMS.accel_std, PARAMS.stale_after,
+                                 tl.segment, 0.0, motion))
+    ticks = np.arange(0.0, 120.0, 0.7)
+    compiled = states_at(tls, ticks)
+    monkeypatch.setattr(collar_bank, 'AVAILABLE', False)
+    numpy_only = states_at(tls, ticks)
+    for a, b in zip(compiled, numpy_only):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
 def test_gaussian_fir_taps_and_response():
     b = gaussian_fir_taps()
     assert len(b) == 30 and b.sum() == pytest.approx(1.0)

@@ -145,8 +145,14 @@ def states_at(timelines, ticks, position_cov_only: bool = False):
                 g[sl], dest[sl], tau[sl], x_all, P_all, motion, flat_x, flat_P)
 
         collar_threads.run(part(sl) for sl in collar_threads.split(np.ones(len(g))))
-    else:
-        xs, Ps = predict_state(x_all[g], P_all[g], tau, motion[g, 0], motion[g, 1])
+    else:                   # numpy: the states of each motion model together
+        xs, Ps = np.empty((len(g), 4)), np.empty((len(g), 4, 4))
+        models, which = np.unique(motion[g], axis=0, return_inverse=True)
+        which = np.asarray(which).reshape(-1)
+        for j, (accel, vt) in enumerate(models.tolist()):
+            sel = which == j
+            xs[sel], Ps[sel] = predict_state(x_all[g[sel]], P_all[g[sel]], tau[sel], accel,
+                                             vt)
         x[init], P[init] = xs, (Ps[:, :2, :2] if position_cov_only else Ps)
     stale_after = np.array([float(tl.stale_after) for tl in timelines])
     stale[init] = tau > np.broadcast_to(stale_after[:, None], (N, T))[init]
