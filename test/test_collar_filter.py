@@ -173,6 +173,26 @@ def test_wrong_track_is_left_after_reacquire_fixes():
     assert np.hypot(*f.x[:2]) < 1.0
 
 
+def test_a_chain_its_model_cannot_follow_is_adopted_at_its_last_place():
+    """A lost track's confirming chain can span a move (within reach) that the collar's own
+    slow model would follow only part of the way: three fixes a minute apart at the origin,
+    then three at 400 m (300 s after the third: within reach, 3 m/s for 60 s then 1 m/s).
+    Filtered through, the chain ends 44 m past its last fix with a velocity of 0.9 m/s that
+    no fix shows, and the next fix at the same place fails the gate; the fix the chain's
+    track so far cannot take (400 m where it predicts the origin within ~30 m) starts it
+    afresh, so the track ends at 400 m at rest and takes the next fixes."""
+    f = CollarFilter(accel_std=1e-4, velocity_tau=1e5, confirm_fixes_lost=6,
+                     default_position_std=5.0)
+    fixes = [(0.0, 0.0), (60.0, 0.0), (120.0, 0.0), (420.0, 400.0), (480.0, 400.0),
+             (540.0, 400.0)]
+    reasons = [f.update(t, e, 0.0).reason for t, e in fixes]
+    assert reasons == ['unconfirmed'] * 5 + ['accepted']
+    assert np.hypot(*(f.x[:2] - [400.0, 0.0])) < 1.0
+    assert np.hypot(*f.x[2:]) < 0.05
+    assert all(f.update(540.0 + 60.0 * k, 400.0, 0.0).reason == 'accepted'
+               for k in range(1, 4))
+
+
 def test_isolated_jumps_never_reinitialise():
     """Five jumps in a row in random directions are not a consistent track."""
     rng = np.random.default_rng(6)

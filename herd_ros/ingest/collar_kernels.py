@@ -318,31 +318,43 @@ def _attach(i, chain, stamp, z0, z1, r, jump, n_cand, cand_jump, cand_len, cand_
 
 
 @_jit
-def _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t, cand_z, cand_r,
-           accel_std, velocity_tau, v0, W):
-    """CollarFilter._adopt: re-initialise on the chain's first fix, update through the
-    rest (``W``: the scratch of :func:`_predict`)."""
-    xi = x[i]
-    Pi = P[i]
-    xi[0] = cand_z[i, chain, 0, 0]
-    xi[1] = cand_z[i, chain, 0, 1]
+def _seat(xi, Pi, z0, z1, r, v0):
+    """The state on one fix: position z (covariance r), velocity 0 (std v0)."""
+    xi[0] = z0
+    xi[1] = z1
     xi[2] = 0.0
     xi[3] = 0.0
     Pi[:, :] = 0.0
-    Pi[0, 0] = cand_r[i, chain, 0, 0, 0]
-    Pi[0, 1] = cand_r[i, chain, 0, 0, 1]
-    Pi[1, 0] = cand_r[i, chain, 0, 1, 0]
-    Pi[1, 1] = cand_r[i, chain, 0, 1, 1]
+    Pi[0, 0] = r[0, 0]
+    Pi[0, 1] = r[0, 1]
+    Pi[1, 0] = r[1, 0]
+    Pi[1, 1] = r[1, 1]
     Pi[2, 2] = Pi[3, 3] = v0 * v0
+
+
+@_jit
+def _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t, cand_z, cand_r,
+           accel_std, velocity_tau, v0, gate, W):
+    """CollarFilter._adopt: re-initialise on the chain's first fix, update through the
+    rest; a fix outside the ``gate`` of that track starts it afresh (``W``: the scratch
+    of :func:`_predict`)."""
+    xi = x[i]
+    Pi = P[i]
+    _seat(xi, Pi, cand_z[i, chain, 0, 0], cand_z[i, chain, 0, 1], cand_r[i, chain, 0], v0)
     t[i] = cand_t[i, chain, 0]
     xp = np.empty(4)
     Pp = np.empty((4, 4))
     for k in range(1, cand_len[i, chain]):
+        z0 = cand_z[i, chain, k, 0]
+        z1 = cand_z[i, chain, k, 1]
         _predict(xi, Pi, cand_t[i, chain, k] - t[i], accel_std, velocity_tau, xp, Pp, W)
-        xi[:] = xp
-        Pi[:, :] = Pp
-        _update(xi, Pi, cand_z[i, chain, k, 0], cand_z[i, chain, k, 1], cand_r[i, chain, k],
-                W)
+        d2, _ = _mahalanobis2(xp, Pp, z0, z1, cand_r[i, chain, k])
+        if d2 <= gate:
+            xi[:] = xp
+            Pi[:, :] = Pp
+            _update(xi, Pi, z0, z1, cand_r[i, chain, k], W)
+        else:
+            _seat(xi, Pi, z0, z1, cand_r[i, chain, k], v0)
         t[i] = cand_t[i, chain, k]
     n_cand[i] = 0
     ever[i] = True
@@ -470,7 +482,7 @@ def process_batch(collar, stamp, east, north, status, R,
                     first = not ever[i]
                     left[i, 0] = np.nan
                     _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
-                           cand_z, cand_r, accel_std[i], velocity_tau[i], v0, W)
+                           cand_z, cand_r, accel_std[i], velocity_tau[i], v0, gate, W)
                     if first:
                         code = ACCEPTED
                     else:
@@ -587,7 +599,7 @@ def process_batch(collar, stamp, east, north, status, R,
                         else:                 # keep the place the track leaves
                             _keep_left(left, i, t, x, P, reacquire, 1.0)
                         _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
-                               cand_z, cand_r, accel_std[i], velocity_tau[i], v0, W)
+                               cand_z, cand_r, accel_std[i], velocity_tau[i], v0, gate, W)
                         counters[i, C_REINIT] += 1
                         code = REINITIALISED
         out_code[m] = code
