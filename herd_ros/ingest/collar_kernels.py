@@ -349,12 +349,12 @@ def _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t, cand_z, 
         z1 = cand_z[i, chain, k, 1]
         _predict(xi, Pi, cand_t[i, chain, k] - t[i], accel_std, velocity_tau, xp, Pp, W)
         d2, _ = _mahalanobis2(xp, Pp, z0, z1, cand_r[i, chain, k])
-        if d2 <= gate:
+        if d2 > gate:
+            _seat(xi, Pi, z0, z1, cand_r[i, chain, k], v0)
+        else:
             xi[:] = xp
             Pi[:, :] = Pp
             _update(xi, Pi, z0, z1, cand_r[i, chain, k], W)
-        else:
-            _seat(xi, Pi, z0, z1, cand_r[i, chain, k], v0)
         t[i] = cand_t[i, chain, k]
     n_cand[i] = 0
     ever[i] = True
