@@ -817,11 +817,8 @@ class CollarFilter:
         fixes = list(chain.fixes)
         self._initialise(*fixes[0])
         for t_k, z_k, r_k in fixes[1:]:
-            tau = t_k - self.t
-            F = transition(tau, self.params.velocity_tau)
-            x_pred = F @ self.x
-            P_pred = F @ self.P @ F.T + process_noise(tau, self.params.accel_std,
-                                                      self.params.velocity_tau)
+            x_pred, P_pred = predict_state(self.x, self.P, t_k - self.t,
+                                           self.params.accel_std, self.params.velocity_tau)
             y = z_k - x_pred[:2]
             if float(y @ np.linalg.solve(P_pred[:2, :2] + r_k, y)) > self._gate:
                 self._initialise(t_k, z_k, r_k)
