@@ -83,6 +83,41 @@ def test_a_real_move_is_followed_after_reacquire_fixes():
     assert np.hypot(*(f.x[:2] - [330.0, 0.0])) < 30.0
 
 
+def test_after_a_move_far_outside_a_wide_range_the_new_place_is_followed():
+    """A collar with a long record at home (300 fixes, 20 h) moves 330 m, within reach,
+    and stays: the move is a jump chain (far outside the range) adopted on its
+    ``reacquire_fixes``-th fix, and then every fix at the new place is taken. The range
+    itself (301 states, one of them at the new place) still has the new place far
+    outside it, so before the track's place counted as part of the range each later
+    fix there began another chain (11 refused as 'range', the 12th adopted, and so on,
+    the range growing by one state per chain); now the fixes taken there bring the new
+    place into the range. The bank does the same fix by fix."""
+    rng = np.random.default_rng(4)
+    t, z = grazing(4, n=300)
+    t2 = t[-1] + STEP * np.arange(1, 41)
+    z2 = np.array([330.0, 0.0]) + rng.normal(0.0, 8.0, (40, 2))
+    t, z = np.r_[t, t2], np.r_[z, z2]
+    p = params()
+    f = CollarFilter(p)
+    out, far = [], []
+    for s, (e, n) in zip(t, z):
+        out.append(f.update(s, e, n))
+        far.append(outside_range(f.range_moments, [330.0, 0.0], p.range_sigmas,
+                                 p.range_margin, p.range_min_fixes))
+    moved = 300 + FilterParams().reacquire_fixes - 1
+    assert [r.reason for r in out[300:moved]] == ['range'] * (moved - 300)
+    assert out[moved].reason == 'reinitialised'
+    assert far[moved]             # one state of 301 there: the range has not taken it in
+    assert not far[-1]            # the states taken there since have
+    assert all(r.reason == 'accepted' for r in out[moved + 1:])
+    assert np.hypot(*(f.x[:2] - [330.0, 0.0])) < 30.0
+    bank = CollarBank(1, p)
+    m = len(t)
+    R = bank.measurement_covariances(np.zeros(m, np.int64), np.zeros((m, 9)))
+    batch = bank.process(np.zeros(m, np.int64), t, z[:, 0], z[:, 1], np.zeros(m, np.int64), R)
+    assert [OUTCOMES[c] for c in batch.outcome] == [r.reason for r in out]
+
+
 def test_a_lost_track_does_not_restart_on_a_far_burst():
     t, z, b0, b1 = burst_then_home(k=8)
     t = t.copy()
@@ -91,6 +126,30 @@ def test_a_lost_track_does_not_restart_on_a_far_burst():
     assert not any(r.accepted for r in out[b0:b1])
     assert all(r.reason == 'unconfirmed' for r in out[b0:b1])
     assert out[b1 + 1].accepted and np.hypot(*f.x[:2]) < 30.0
+
+
+def test_a_far_fix_after_a_silence_does_not_confirm_a_chain_begun_at_home():
+    """After an hour's silence (the track lost) one fix at home, then one 420 m off,
+    within reach of it after 300 s: before, the far fix joined the home fix's chain and
+    confirmed it, and the track started on the far fix (measured on the duty-cycled
+    steers: a burst adopted so). A chain that a fix far outside the range joins is a jump
+    chain: the far fix waits, and the next two fixes at home start the track there. The
+    bank does the same fix by fix."""
+    t, z = grazing(5)
+    t0 = t[-1] + 3600.0
+    t = np.r_[t, t0, t0 + 300.0, t0 + 360.0, t0 + 420.0]
+    z = np.r_[z, [[3.0, -2.0], [420.0, 0.0], [-4.0, 5.0], [2.0, 1.0]]]
+    p = params()
+    f, out = run(p, t, z)
+    assert [r.reason for r in out[GRAZE:]] == ['unconfirmed'] * 3 + ['reinitialised']
+    assert np.hypot(*f.x[:2]) < 10.0
+    _, before = run(params(range_sigmas=0.0), t, z)       # no range rule: taken
+    assert before[GRAZE + 1].reason == 'reinitialised'
+    bank = CollarBank(1, p)
+    m = len(t)
+    R = bank.measurement_covariances(np.zeros(m, np.int64), np.zeros((m, 9)))
+    batch = bank.process(np.zeros(m, np.int64), t, z[:, 0], z[:, 1], np.zeros(m, np.int64), R)
+    assert [OUTCOMES[c] for c in batch.outcome] == [r.reason for r in out]
 
 
 def test_the_bank_does_the_same_fix_by_fix():

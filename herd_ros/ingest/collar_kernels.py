@@ -475,6 +475,8 @@ def process_batch(collar, stamp, east, north, status, R,
                 chain = _attach(i, -1, s, z0, z1, r, far, n_cand, cand_jump, cand_len,
                                 cand_t, cand_z, cand_r, max_speed, cruise_speed, sprint_s,
                                 gate_sigma, not far)
+                if far:
+                    cand_jump[i, chain] = True  # a fix far outside the range: a jump
                 if cand_len[i, chain] < (reacquire if cand_jump[i, chain] else confirm_lost):
                     code = UNCONFIRMED
                     counters[i, C_UNCONF] += 1
@@ -525,7 +527,12 @@ def process_batch(collar, stamp, east, north, status, R,
                     y0 = z0 - xp[0]
                     y1 = z1 - xp[1]
                     innovation = math.hypot(y0, y1)
-                    far = _far(i, z0, z1, rng, range_sigmas, range_margin, range_min)
+                    # far outside the range, unless near a track that is itself outside
+                    # it (CollarFilter._at_track_place)
+                    far = _far(i, z0, z1, rng, range_sigmas, range_margin, range_min) and \
+                        not (dist - 3.0 * sigma <= range_margin
+                             and _far(i, xi[0], xi[1], rng, range_sigmas, range_margin,
+                                      range_min))
                     for c in range(n_cand[i] - 1, -1, -1):
                         if (_reach_ratio(i, c, s, z0, z1, r, cand_len, cand_t, cand_z,
                                          cand_r, max_speed, cruise_speed, sprint_s,
@@ -577,6 +584,8 @@ def process_batch(collar, stamp, east, north, status, R,
                         code = ACCEPTED
                         _held(left, i)
                 if chain >= 0:
+                    if reason == RANGE:
+                        cand_jump[i, chain] = True  # a fix far outside the range: a jump
                     need = reacquire if cand_jump[i, chain] else confirm
                     if cand_len[i, chain] < need and math.isfinite(left[i, 0]) and \
                             _return_to_left(i, s, z0, z1, r, left, accel_std[i],
