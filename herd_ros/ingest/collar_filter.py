@@ -94,7 +94,7 @@ the range is followed after ``reacquire_fixes`` fixes instead of ``confirm_fixes
 range grows to take it in: the place the track is at counts as part of the range, so a fix
 within ``range_margin`` (beyond 3 σ) of a track that itself lies far outside the range is
 not far. (Without that, the range grew by one state per adoption and every fix at the new
-place started another jump chain: measured on a real cattle logger driven 1.6 km, the
+place started another jump chain: measured on a real cattle logger driven 1.4 km, the
 track accepted one fix in twelve there and was stale between.) The same rule applies to
 a lost track's first chain (and a fix inside the range joins no such chain), and a chain
 that a fix far outside the range joins becomes a jump chain: a burst fix after a silence
