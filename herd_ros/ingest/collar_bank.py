@@ -180,17 +180,22 @@ class CollarBank:
         self.velocity_tau = np.full(n, float(self.params.velocity_tau))
         self.position_std = np.full(n, float(self.params.default_position_std))
         self.position_floor = np.full(n, float(self.params.position_std_floor))
+        self.hdop_scaled = np.zeros(n, bool)    # a fix's default std × its HDOP
 
-    def set_motion(self, i, accel_std, velocity_tau, position_std=None, floor=None):
+    def set_motion(self, i, accel_std, velocity_tau, position_std=None, floor=None,
+                   hdop=None):
         """Collar(s) ``i`` move by this model from their next fix on (``position_std``:
         the std of their fixes without a covariance, ``floor`` the smallest std of any of
-        their fixes; None keeps them)."""
+        their fixes, ``hdop``: that std is ``position_std`` × the fix's HDOP; None keeps
+        them)."""
         self.accel_std[i] = accel_std
         self.velocity_tau[i] = velocity_tau
         if position_std is not None:
             self.position_std[i] = position_std
         if floor is not None:
             self.position_floor[i] = floor
+        if hdop is not None:
+            self.hdop_scaled[i] = hdop
 
     @staticmethod
     def warm_up():
@@ -217,15 +222,20 @@ class CollarBank:
         with np.errstate(invalid='ignore'):
             return ~(float(t) - self.t <= self.params.stale_after)
 
-    def measurement_covariances(self, cov_type, cov9, collar=None) -> np.ndarray:
+    def measurement_covariances(self, cov_type, cov9, collar=None, hdop=None) -> np.ndarray:
         """``R`` (M, 2, 2) for a batch, with this bank's floor and default std (each
-        fix's collar's, given ``collar`` (M,); else ``params``')."""
+        fix's collar's, given ``collar`` (M,); else ``params``'); ``hdop`` (M,), NaN where
+        none: the default std of a fix of a collar whose model takes the HDOP
+        (:attr:`hdop_scaled`) is its collar's × its HDOP."""
         if collar is None:
             return measurement_covariances(cov_type, cov9, self.params.default_position_std,
                                            self.params.position_std_floor)
         collar = np.asarray(collar, dtype=np.int64)
-        return measurement_covariances(cov_type, cov9, self.position_std[collar],
-                                       self.position_floor[collar])
+        std = self.position_std[collar]
+        if hdop is not None:
+            h = np.asarray(hdop, dtype=float)
+            std = np.where(self.hdop_scaled[collar] & np.isfinite(h), std * h, std)
+        return measurement_covariances(cov_type, cov9, std, self.position_floor[collar])
 
     def process(self, collar, stamp, east, north, status, R, *, keep_covariance=True,
                 out: FixBatch | None = None) -> FixBatch:

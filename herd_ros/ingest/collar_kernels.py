@@ -731,6 +731,18 @@ def snapshot(tick, count, rt, rx, rP, rm, stale_after, x, P, stale, init):
 
 
 @_jit
+def _fix_var(r, sm2):
+    """A fix's variance in the likelihood (motion_refit.fix_variance): ``r`` where known
+    (≥ 0), ``sm2 · (−r)`` for a fix scaled by its HDOP (``r`` = −HDOP²), ``sm2`` where
+    unknown (NaN)."""
+    if r >= 0.0:
+        return r
+    if r < 0.0:
+        return sm2 * (-r)
+    return sm2
+
+
+@_jit
 def _walk_steps(t, i, m, walk_accel, walk_tau, out):
     """The walk component's (f_pv, f_vv, q_pp, q_pv, q_vv) at each of collar i's first
     ``m`` intervals, into ``out[k]`` for the interval ending at fix k: they depend on the
@@ -768,7 +780,7 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber,
     comp = np.empty((2, 5, 2))          # component, (p, v, a, b, c), axis
     lc = np.empty(2)
     accel = math.sqrt(D) / tv
-    r0 = r[i, 0] if math.isfinite(r[i, 0]) else sm2
+    r0 = _fix_var(r[i, 0], sm2)
     for ax in range(2):
         p[ax] = z[i, 0, ax]
         v[ax] = 0.0
@@ -780,7 +792,7 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber,
     ncomp = 2 if use_walk else 1
     for k in range(1, m):
         dt = t[i, k] - t[i, k - 1]
-        rk = r[i, k] if math.isfinite(r[i, k]) else sm2
+        rk = _fix_var(r[i, k], sm2)
         for j in range(ncomp):
             if j == 0:
                 f, gg, qpp, qpv, qvv = _motion(dt, accel, tv)
@@ -973,11 +985,11 @@ def _loglik_pair(t, z, r, i, mi, tvi, Di, smi, walk_i, j, mj, tvj, Dj, smj, walk
     log_two_pi = math.log(2.0 * math.pi)
     Ai = math.sqrt(Di) / tvi
     Aj = math.sqrt(Dj) / tvj
-    r0 = r[i, 0] if math.isfinite(r[i, 0]) else smi
+    r0 = _fix_var(r[i, 0], smi)
     ipx, ipy, ivx, ivy, iax, iay, ibx, iby = z[i, 0, 0], z[i, 0, 1], 0.0, 0.0, r0, r0, 0.0, 0.0
     icx = Di / (2.0 * tvi)
     icy = Di / (2.0 * tvi)
-    r0 = r[j, 0] if math.isfinite(r[j, 0]) else smj
+    r0 = _fix_var(r[j, 0], smj)
     jpx, jpy, jvx, jvy, jax, jay, jbx, jby = z[j, 0, 0], z[j, 0, 1], 0.0, 0.0, r0, r0, 0.0, 0.0
     jcx = Dj / (2.0 * tvj)
     jcy = Dj / (2.0 * tvj)
@@ -985,8 +997,8 @@ def _loglik_pair(t, z, r, i, mi, tvi, Di, smi, walk_i, j, mj, tvj, Dj, smj, walk
     ll_j = 0.0
     both = min(mi, mj)
     for k in range(1, both):
-        rki = r[i, k] if math.isfinite(r[i, k]) else smi
-        rkj = r[j, k] if math.isfinite(r[j, k]) else smj
+        rki = _fix_var(r[i, k], smi)
+        rkj = _fix_var(r[j, k], smj)
         fi, gi, qppi, qpvi, qvvi = _motion(t[i, k] - t[i, k - 1], Ai, tvi)
         fj, gj, qppj, qpvj, qvvj = _motion(t[j, k] - t[j, k - 1], Aj, tvj)
         i0x = _lane_axis(ipx, ivx, iax, ibx, icx, fi, gi, qppi, qpvi, qvvi, rki, 0.0, z[i, k, 0])
@@ -1057,7 +1069,7 @@ def _lane_rest(t, z, r, c, k0, m, tv, acc, sm2, walk, use_walk, lg0, lw0, log_tw
     collar's rest in :func:`_loglik_pair`, the same operations as there."""
     px, vx, ax, bx, cx, py, vy, ay, by, cy = state
     for k in range(k0, m):
-        rk = r[c, k] if math.isfinite(r[c, k]) else sm2
+        rk = _fix_var(r[c, k], sm2)
         f, gg, qpp, qpv, qvv = _motion(t[c, k] - t[c, k - 1], acc, tv)
         gx = _lane_axis(px, vx, ax, bx, cx, f, gg, qpp, qpv, qvv, rk, 0.0, z[c, k, 0])
         gy = _lane_axis(py, vy, ay, by, cy, f, gg, qpp, qpv, qvv, rk, 0.0, z[c, k, 1])

@@ -50,6 +50,7 @@ accepted fixes.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -87,6 +88,8 @@ class MotionFit:
         optima: the search's optimum of each model, ``(random walk, IOU)``, each
             ``(log10 τ_v, log10 σ_a, log10 σ_m²)``: where a refit on the collar's next
             window starts (None for a prior).
+        hdop: the std of a fix without a covariance is ``position_std`` × its HDOP (the
+            likelier of that and one std for all, :func:`fit_motion`), where it has one.
     """
 
     model: str
@@ -97,6 +100,7 @@ class MotionFit:
     aic: float
     n_fixes: int
     optima: tuple | None = None
+    hdop: bool = False
 
     @property
     def accel_std(self) -> float:
@@ -187,6 +191,15 @@ def _walk(walk):
     return w if len(w) == 4 else w + (0.0,)
 
 
+def fix_var(r, sm2):
+    """A fix's variance in the likelihood: ``r`` where known (≥ 0), ``sm2 · (−r)`` for a
+    fix scaled by its HDOP (``r`` = −HDOP², :func:`herd_ros.ingest.motion_refit
+    .fix_variance`), ``sm2`` where unknown (NaN); broadcast together."""
+    r = np.asarray(r, float)
+    with np.errstate(invalid='ignore'):
+        return np.where(r >= 0, r, np.where(r < 0, np.asarray(sm2) * -r, sm2))
+
+
 def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
                             walk=None, distance: bool = False):
     """ℓ (module docstring) of N collars at G parameter points each, vectorised over
@@ -216,8 +229,7 @@ def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
     D = np.asarray(diffusion, float)
     sm2 = np.asarray(position_var, float)
     accel = np.sqrt(D) / tv
-    known = np.isfinite(r)
-    r0 = np.where(known[:, :1], r[:, :1], sm2)
+    r0 = fix_var(r[:, :1], sm2)
     shape = tv.shape + (2,)                       # (N, G, axis)
     p = np.broadcast_to(z[:, None, 0, :], shape).copy()
     v = np.zeros(shape)
@@ -237,7 +249,7 @@ def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
         if not live.any():
             break
         dt = np.where(live, (t[:, k] - t[:, k - 1])[:, None], 0.0)
-        rk = np.where(known[:, k:k + 1], r[:, k:k + 1], sm2)[..., None]
+        rk = fix_var(r[:, k:k + 1], sm2)[..., None]
         zk = z[:, None, k, :]
         out = []
         for j, (ctv, cacc, logp, extra) in enumerate(comps):
@@ -349,7 +361,39 @@ def _search(t, z, r, n, log_tv, log_D, log_sm, fit_tv, fit_sm, walk, levels=4,
 def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
                position_std_floor: float = 0.5, default: MotionFit | None = None,
                walk=None, start=None) -> list[MotionFit]:
-    """Fit each collar's motion model (module docstring).
+    """Fit each collar's motion model (module docstring; arguments as
+    :func:`fit_motion_once`). A collar whose fixes without a covariance carry an HDOP (its
+    ``r`` −HDOP², :func:`herd_ros.ingest.motion_refit.fix_variance`) is fitted twice: those
+    fixes' std σ_m × HDOP (σ_m the UERE of ctmm's error model, Fleming et al. 2020,
+    *Methods Ecol. Evol.* 12) and one σ_m for all; the likelier is kept (the same number of
+    parameters), and :attr:`MotionFit.hdop` says which."""
+    kw = dict(min_fixes=min_fixes, max_fixes=max_fixes,
+              position_std_floor=position_std_floor, default=default, walk=walk)
+    tracks = list(tracks)
+    with np.errstate(invalid='ignore'):
+        scaled = [bool((np.asarray(r, float)[-max_fixes:] < 0).any()) for _, _, r in tracks]
+    if not any(scaled):
+        return fit_motion_once(tracks, start=start, **kw)
+    plain = [(t, z, np.where(np.asarray(r, float) < 0, np.nan, r)) if s else (t, z, r)
+             for (t, z, r), s in zip(tracks, scaled)]
+    fits = fit_motion_once(tracks, start=start, **kw)
+    idx = [i for i, s in enumerate(scaled) if s]
+    alt = fit_motion_once([plain[i] for i in idx],
+                          start=None if start is None else [start[i] for i in idx], **kw)
+    out = list(fits)
+    for i, f0 in zip(idx, alt):
+        f = fits[i]
+        if f.model == 'prior' or not f.loglik >= f0.loglik:
+            out[i] = f0
+        else:
+            out[i] = dataclasses.replace(f, hdop=True)
+    return out
+
+
+def fit_motion_once(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
+                    position_std_floor: float = 0.5, default: MotionFit | None = None,
+                    walk=None, start=None) -> list[MotionFit]:
+    """Fit each collar's motion model (module docstring), the variances ``r`` as given.
 
     Args:
         tracks: per collar ``(t (K,), z (K, 2), r (K,))``: the times (s, increasing),
@@ -385,7 +429,8 @@ def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
         return [default] * len(cleaned)
     t, z, r, n = _pack([cleaned[i] for i in enough], max_fixes)
     N = len(enough)
-    unknown = ~np.isfinite(r) & (np.arange(t.shape[1])[None, :] < n[:, None])
+    with np.errstate(invalid='ignore'):
+        unknown = ~(r >= 0) & (np.arange(t.shape[1])[None, :] < n[:, None])
     sm_free = unknown.any(axis=1)         # per collar: some fixes without a covariance
     fit_sm = bool(sm_free.any())
     # the random-walk limit: τ_v a tenth of the collar's 10th-percentile interval

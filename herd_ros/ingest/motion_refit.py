@@ -420,15 +420,35 @@ def _background_thread():
         pass
 
 
-def fix_variance(cov_type, cov_ee, cov_nn, floor: float) -> np.ndarray:
+def fix_variance(cov_type, cov_ee, cov_nn, floor: float, hdop=None) -> np.ndarray:
     """A fix's variance per axis for the fit: the mean of its covariance's diagonal
-    (floored) where NavSatFix gives one, NaN (unknown: fitted) otherwise."""
+    (floored) where NavSatFix gives one; otherwise NaN (unknown: σ_m², fitted), or −HDOP²
+    for a fix with an HDOP (finite, > 0): σ_m² HDOP² if the collar's fit takes the HDOP
+    (:func:`herd_ros.ingest.motion_fit.fit_motion`)."""
     cov_ee = np.asarray(cov_ee, float)
     cov_nn = np.asarray(cov_nn, float)
     known = (np.asarray(cov_type) != 0) & np.isfinite(cov_ee) & np.isfinite(cov_nn)
     with np.errstate(invalid='ignore'):
         v = np.maximum(0.5 * (cov_ee + cov_nn), floor * floor)
-    return np.where(known, v, np.nan)
+    out = np.where(known, v, np.nan)
+    if hdop is not None:
+        h = np.asarray(hdop, float)
+        with np.errstate(invalid='ignore'):
+            scaled = ~known & (h > 0) & np.isfinite(h)
+        out = np.where(scaled, -np.minimum(h, MAX_HDOP) ** 2, out)
+    return out
+
+
+#: the largest HDOP taken as it is (a receiver's "no solution" value is often 99.9)
+MAX_HDOP = 50.0
+
+
+def fix_hdop(var) -> np.ndarray:
+    """The HDOP of each fix that :func:`fix_variance` scaled (``var`` < 0), NaN for the
+    rest."""
+    var = np.asarray(var, float)
+    with np.errstate(invalid='ignore'):
+        return np.where(var < 0, np.sqrt(np.abs(var)), np.nan)
 
 
 def apply_fit(bank, i: int, fit: MotionFit):
@@ -436,7 +456,7 @@ def apply_fit(bank, i: int, fit: MotionFit):
     parameters :func:`herd_ros.ingest.pipeline.with_motion` gives the reference filter
     (:func:`~herd_ros.ingest.pipeline.fitted_motion`), its fix std and floor included."""
     from herd_ros.ingest.pipeline import fitted_motion
-    bank.set_motion(i, *fitted_motion(bank.params, fit))
+    bank.set_motion(i, *fitted_motion(bank.params, fit), hdop=bool(getattr(fit, 'hdop', False)))
 
 
 def refit_rounds(stamps, bounds, config: RefitConfig) -> np.ndarray:
@@ -650,6 +670,6 @@ def process_observed(bank, refitter: MotionRefitter, collar, stamp, east, north,
     model each fix's collar had in ``motion`` (M, 2) (see :func:`process_with_refits`)."""
     motion[:, 0] = bank.accel_std[collar]
     motion[:, 1] = bank.velocity_tau[collar]
-    R = bank.measurement_covariances(cov_type, cov9, collar)
+    R = bank.measurement_covariances(cov_type, cov9, collar, fix_hdop(var))
     bank.process(collar, stamp, east, north, status, R, out=out)
     refitter.observe(collar, stamp, east, north, var, out.accepted)

@@ -282,9 +282,15 @@ def fitted_motion(params: FilterParams, fit) -> tuple[float, float, float, float
         return (fit.accel_std, fit.velocity_tau, params.default_position_std,
                 params.position_std_floor)
     # a fitted std is the data's word: the floor (a guard against receivers that claim
-    # too much) does not raise it
-    return (fit.accel_std, fit.velocity_tau, fit.position_std,
-            min(fit.position_std, params.position_std_floor))
+    # too much) does not raise it (nor, times a fix's HDOP, its least HDOP's share)
+    floor = min(fit.position_std, params.position_std_floor)
+    if getattr(fit, 'hdop', False):
+        floor = min(floor, fit.position_std * MIN_HDOP)
+    return (fit.accel_std, fit.velocity_tau, fit.position_std, floor)
+
+
+#: the HDOP below which a fix's std σ_m·HDOP is floored (a receiver's best)
+MIN_HDOP = 0.5
 
 
 #: the filter implementations of :func:`run_filters`
@@ -336,13 +342,15 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
     cov[:, 4] = fixes['cov_nn'].to_numpy(float)
     agent_col = fixes['agent'].to_numpy(dtype=object)
     agents = sorted(pd.unique(agent_col)) if agents is None else list(agents)
+    hdop = fixes['hdop'].to_numpy(float) if 'hdop' in fixes.columns else None
     if refit is not None:
         params = with_walk(params)
     if engine == 'bank' and collar_bank.AVAILABLE:
         return _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progress,
-                         refit)
-    from herd_ros.ingest.motion_refit import MotionRefitter, fix_variance
-    var = fix_variance(cov_type, cov[:, 0], cov[:, 4], params.position_std_floor)
+                         refit, hdop=hdop)
+    from herd_ros.ingest.motion_refit import MotionRefitter, fix_hdop, fix_variance
+    var = fix_variance(cov_type, cov[:, 0], cov[:, 4], params.position_std_floor, hdop)
+    h = fix_hdop(var)
     reasons = np.empty(len(fixes), dtype=object)
     collars, timelines = {}, {}
     bar = None
@@ -356,15 +364,24 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
         rec = TimelineRecorder(f)
         refitter = MotionRefitter(1, refit) if refit is not None else None
 
-        def use(fit, f=f):
+        in_force = [None]           # the fitted model the filter runs with
+
+        def use(fit, f=f, in_force=in_force):
             f.params = with_motion(params, fit)
+            in_force[0] = fit
 
         for k in rows:
             if refitter is not None:
                 # the models scheduled by this fix's stamp take over (motion_refit: lag_s)
                 refitter.take_over(0, t[k], use)
-            res = f.update(t[k], e[k], n[k], status=status[k], position_covariance=cov[k],
-                           position_covariance_type=cov_type[k])
+            c, ct = cov[k], cov_type[k]
+            if np.isfinite(h[k]) and in_force[0] is not None and in_force[0].hdop:
+                # the fix's std is the fitted σ_m times its HDOP (motion_fit.fit_motion)
+                c = np.zeros(9)
+                c[0] = c[4] = (f.params.default_position_std * h[k]) ** 2
+                ct = 1
+            res = f.update(t[k], e[k], n[k], status=status[k], position_covariance=c,
+                           position_covariance_type=ct)
             reasons[k] = res.reason
             rec.record()
             if refitter is not None:
@@ -385,7 +402,7 @@ def run_filters(fixes: pd.DataFrame, datum, params: FilterParams, agents=None,
 
 
 def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progress, refit,
-              chunk: int = 1_000_000):
+              chunk: int = 1_000_000, hdop=None):
     """:func:`run_filters` on a :class:`~herd_ros.ingest.collar_bank.CollarBank`: every
     fix of the asked agents, each collar's in stamp order (stable, as the reference). With
     refits, in rounds: every collar's fixes up to its next refit point, then the next
@@ -406,7 +423,7 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
         # rounds: a fix's round is how many events of its collar came before it, its refit
         # points and the fixes at which their models take over
         order = np.lexsort((np.arange(m), refit_rounds(t[rows], bounds, refit)))
-        var = fix_variance(cov_type, cov[:, 0], cov[:, 4], params.position_std_floor)
+        var = fix_variance(cov_type, cov[:, 0], cov[:, 4], params.position_std_floor, hdop)
         r = rows[order]
         out, motion = process_with_refits(bank, refitter, codes[r], t[r], e[r], n[r],
                                           status[r], cov_type[r], cov[r], var[r])
@@ -722,6 +739,7 @@ def collar_table(counters: dict, spans: dict | None = None, fits: dict | None = 
                        D_m2_s=f.diffusion if f is not None else np.nan,
                        speed_ms=f.speed_std if f is not None else np.nan,
                        fix_std_m=f.position_std if f is not None else np.nan,
+                       fix_std_x_hdop=bool(f is not None and f.hdop),
                        fixes_fitted=f.n_fixes if f is not None else 0)
         rows.append(row)
     return pd.DataFrame(rows)
@@ -741,8 +759,9 @@ def format_motion_fits(fits: dict) -> str:
     where it is the likelier by AIC and the closer one-step predictor, else the random walk),
     τ_v (s), the long-run diffusion D (m²/s per axis), the speed std (m/s per axis;
     ``cv end`` for a fit at the constant-velocity end, where it is not defined), the fix std
-    σ_m (m; ``given`` where the fixes carried a covariance) and the fixes fitted; ``prior``
-    for a collar with too few fixes to fit."""
+    σ_m (m; ``given`` where the fixes carried a covariance; ``× HDOP`` where a fix's std is
+    σ_m times its HDOP) and the fixes fitted; ``prior`` for a collar with too few fixes to
+    fit."""
     width = max([len('agent')] + [len(a) for a in fits])
     lines = [f'{"agent":<{width}}  {"motion":>6}  {"tau_v_s":>9}  {"D_m2_s":>9}  '
              f'{"speed_ms":>8}  {"fix_std_m":>9}  {"fixes":>5}']
@@ -753,5 +772,6 @@ def format_motion_fits(fits: dict) -> str:
         std = f'{f.position_std:9.2f}' if np.isfinite(f.position_std) else f'{"given":>9}'
         speed = f'{f.speed_std:8.3g}' if np.isfinite(f.speed_std) else f'{"cv end":>8}'
         lines.append(f'{agent:<{width}}  {f.model:>6}  {f.velocity_tau:9.3g}  '
-                     f'{f.diffusion:9.3g}  {speed}  {std}  {f.n_fixes:>5}')
+                     f'{f.diffusion:9.3g}  {speed}  {std}  {f.n_fixes:>5}'
+                     + ('  × HDOP' if f.hdop else ''))
     return '\n'.join(lines)

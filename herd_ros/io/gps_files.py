@@ -12,15 +12,22 @@ The fixes table has one row per fix and the columns :data:`FIX_COLUMNS`:
 ``cov_ee, cov_en, cov_nn``  E/N block of ``position_covariance`` (m²), NaN if unknown
 =========================== ======================================================
 
+and, where the file gives it, ``hdop`` (the fix's horizontal dilution of precision, NaN where
+a row has none): a fix without a covariance then has the std σ_m·HDOP, σ_m fitted per collar
+(:mod:`herd_ros.ingest.motion_fit`).
+
 Formats:
 
 * **GPS CSV** (doc/formats.md): header ``time,agent,lat,lon`` with optional ``alt`` (and the other
-  columns above); ``time`` in epoch seconds or ISO-8601 (naive times are taken as UTC).
+  columns above, and ``hdop``); ``time`` in epoch seconds or ISO-8601 (naive times are taken
+  as UTC).
 * **Movebank CSV**: ``timestamp`` (UTC, ``YYYY-MM-DD HH:MM:SS[.fff]``), ``location-long``,
-  ``location-lat``, ``individual-local-identifier``; ``height-above-ellipsoid`` if present.
+  ``location-lat``, ``individual-local-identifier``; ``height-above-ellipsoid`` and
+  ``gps:hdop`` if present.
   Rows without a location stay in the table with NaN lat/lon (the filter counts them).
 * **GPX** 1.0/1.1: every ``trk`` is one agent, named by its ``<name>`` or else by the file
-  name (``<stem>`` or ``<stem>_<k>`` for several tracks); ``trkpt`` lat/lon, ``ele``, ``time``.
+  name (``<stem>`` or ``<stem>_<k>`` for several tracks); ``trkpt`` lat/lon, ``ele``, ``time``,
+  ``hdop``.
 
 Errors raise :class:`herd_ros.errors.HerdInputError` naming the file, line and field.
 """
@@ -56,6 +63,8 @@ def normalise_fixes(df: pd.DataFrame) -> pd.DataFrame:
         out[col] = out[col].astype(float)
     for col in ('status', 'position_covariance_type'):
         out[col] = out[col].fillna(0).astype(int)
+    if 'hdop' in out.columns:
+        out['hdop'] = out['hdop'].astype(float)
     cols = list(FIX_COLUMNS) + [c for c in out.columns if c not in FIX_COLUMNS]
     return out[cols].reset_index(drop=True)
 
@@ -167,7 +176,8 @@ def read_gps_csv(path) -> pd.DataFrame:
     for col in ('lat', 'lon'):
         out[col] = _numeric(path, df, col, allow_nan=True)
     _check_ranges(path, out)
-    for col in ('alt', 'cov_ee', 'cov_en', 'cov_nn', 'status', 'position_covariance_type'):
+    for col in ('alt', 'cov_ee', 'cov_en', 'cov_nn', 'status', 'position_covariance_type',
+                'hdop'):
         if col in df.columns:
             out[col] = _numeric(path, df, col, allow_nan=True)
     return normalise_fixes(out)
@@ -206,6 +216,8 @@ def read_movebank_csv(path) -> pd.DataFrame:
     _check_ranges(path, out, 'location-lat', 'location-long')
     if 'height-above-ellipsoid' in df.columns:
         out['alt'] = _numeric(path, df, 'height-above-ellipsoid', allow_nan=True)
+    if 'gps:hdop' in df.columns:
+        out['hdop'] = _numeric(path, df, 'gps:hdop', allow_nan=True)
     return normalise_fixes(out)
 
 
@@ -241,11 +253,18 @@ def read_gpx(path) -> pd.DataFrame:
             time = pt.findtext(q('time'))
             if time is None:
                 _fail(path, f'{where}: no <time>')
+            hdop = pt.findtext(q('hdop'))
+            try:
+                hdop = float(hdop) if hdop not in (None, '') else np.nan
+            except ValueError:
+                _fail(path, f'{where}: <hdop> is not a number')
             rows.append((time.strip(), name, lat, lon,
-                         float(ele) if ele not in (None, '') else np.nan))
+                         float(ele) if ele not in (None, '') else np.nan, hdop))
     if not rows:
         _fail(path, 'no <trkpt> points in the GPX tracks')
-    raw = pd.DataFrame(rows, columns=['time', 'agent', 'lat', 'lon', 'alt'])
+    raw = pd.DataFrame(rows, columns=['time', 'agent', 'lat', 'lon', 'alt', 'hdop'])
+    if not np.isfinite(raw['hdop'].to_numpy()).any():
+        raw = raw.drop(columns='hdop')
     out = raw.copy()
     try:
         stamps = pd.to_datetime(raw['time'], utc=True, format='ISO8601')
