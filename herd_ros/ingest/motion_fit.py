@@ -366,7 +366,8 @@ def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
     ``r`` −HDOP², :func:`herd_ros.ingest.motion_refit.fix_variance`) is fitted twice: those
     fixes' std σ_m × HDOP (σ_m the UERE of ctmm's error model, Fleming et al. 2020,
     *Methods Ecol. Evol.* 12) and one σ_m for all; the likelier is kept (the same number of
-    parameters), and :attr:`MotionFit.hdop` says which."""
+    parameters) if it is also the closer one-step predictor on the window (the check the
+    IOU passes, :func:`one_step_distance`), and :attr:`MotionFit.hdop` says which."""
     kw = dict(min_fixes=min_fixes, max_fixes=max_fixes,
               position_std_floor=position_std_floor, default=default, walk=walk)
     tracks = list(tracks)
@@ -381,13 +382,45 @@ def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
     alt = fit_motion_once([plain[i] for i in idx],
                           start=None if start is None else [start[i] for i in idx], **kw)
     out = list(fits)
+    likelier = [(i, f0) for i, f0 in zip(idx, alt)
+                if fits[i].model != 'prior' and fits[i].loglik >= f0.loglik]
     for i, f0 in zip(idx, alt):
-        f = fits[i]
-        if f.model == 'prior' or not f.loglik >= f0.loglik:
-            out[i] = f0
-        else:
-            out[i] = dataclasses.replace(f, hdop=True)
+        out[i] = f0
+    if likelier:
+        # as for the IOU: the HDOP's model must also be the closer one-step predictor
+        ii = [i for i, _ in likelier]
+        d_h = _window_distance([tracks[i] for i in ii], [fits[i] for i in ii], max_fixes,
+                               walk)
+        d_0 = _window_distance([plain[i] for i in ii], [f0 for _, f0 in likelier],
+                               max_fixes, walk)
+        for k, i in enumerate(ii):
+            if d_h[k] < d_0[k]:
+                out[i] = dataclasses.replace(fits[i], hdop=True)
     return out
+
+
+def _clean(track):
+    """A track's (t, z, r) with its rows of a non-finite time or position, and those not
+    after the one before, dropped."""
+    ti, zi, ri = track
+    ti = np.asarray(ti, float)
+    zi = np.asarray(zi, float).reshape(-1, 2)
+    ri = np.asarray(ri, float).reshape(-1)
+    ok = np.isfinite(ti) & np.isfinite(zi).all(axis=1)
+    ti, zi, ri = ti[ok], zi[ok], ri[ok]
+    keep = np.concatenate([[True], np.diff(ti) > 0]) if len(ti) else ok[:0]
+    return ti[keep], zi[keep], ri[keep]
+
+
+def _window_distance(tracks, fits, max_fixes, walk) -> np.ndarray:
+    """:func:`one_step_distance` of each fit on its own track's window (the fixes it
+    was fitted on)."""
+    t, z, r, n = _pack([_clean(tr) for tr in tracks], max_fixes)
+    col = lambda v: np.asarray(v, float)[:, None]                       # noqa: E731
+    tv = col([f.velocity_tau for f in fits])
+    D = col([f.diffusion for f in fits])
+    sm2 = col([f.position_std ** 2 if np.isfinite(f.position_std) else 25.0 for f in fits])
+    return one_step_distance(t, z, r, n, tv, D, sm2, walk)[:, 0]
 
 
 def fit_motion_once(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
@@ -414,15 +447,7 @@ def fit_motion_once(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
     """
     if default is None:
         default = MotionFit('prior', 1.0, 0.05, 5.0, float('nan'), float('nan'), 0)
-    cleaned = []
-    for ti, zi, ri in tracks:
-        ti = np.asarray(ti, float)
-        zi = np.asarray(zi, float).reshape(-1, 2)
-        ri = np.asarray(ri, float).reshape(-1)
-        ok = np.isfinite(ti) & np.isfinite(zi).all(axis=1)
-        ti, zi, ri = ti[ok], zi[ok], ri[ok]
-        keep = np.concatenate([[True], np.diff(ti) > 0]) if len(ti) else ok[:0]
-        cleaned.append((ti[keep], zi[keep], ri[keep]))
+    cleaned = [_clean(tr) for tr in tracks]
     enough = [i for i, tr in enumerate(cleaned) if len(tr[0]) >= min_fixes]
     out = [None] * len(cleaned)
     if not enough:
