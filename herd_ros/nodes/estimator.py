@@ -205,16 +205,19 @@ class Estimator(Node):
             self._regime_pool = ThreadPoolExecutor(max_workers=1,
                                                    thread_name_prefix='noise_regimes')
         self._regime_job = (self._regime_generation,
-                            self._regime_pool.submit(fit_residuals, residuals))
+                            self._regime_pool.submit(fit_residuals, residuals),
+                            self.counts['updates'] + self.cfg['regime_adopt_after'])
 
     def take_regimes(self):
-        """Adopt and publish a finished refit (K = 1, plain Gaussian noise, is published too:
-        a controller drops earlier regimes); one fitted before a reset is dropped."""
+        """Adopt and publish a refit at its update (``regime_adopt_after`` after it started,
+        waiting for it there: data time, so a replay gives the same regimes at the same
+        snapshot at any rate); K = 1, plain Gaussian noise, is published too (a controller
+        drops earlier regimes); one fitted before a reset is dropped."""
         job = self._regime_job
-        if job is None or not job[1].done():
+        if job is None or self.counts['updates'] < job[2]:
             return
         self._regime_job = None
-        generation, future = job
+        generation, future, _ = job
         if generation != self._regime_generation:
             return
         try:

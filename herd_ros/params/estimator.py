@@ -164,6 +164,19 @@ PARAMS = {
         doc=('Updates between refits of the noise regimes (a refit of 19 agents '
              'over 240 steps\n'
              'takes about 0.1 s); the first comes after as many updates.')),
+    'regime_adopt_after': Param(
+        5,
+        'updates from a noise-regime refit to its adoption (data time: repeatable runs)',
+        range=(1, 1000000000),
+        doc=('A refit of the noise regimes runs in a worker thread and is adopted '
+             'and published\n'
+             'exactly regime_adopt_after updates after it started, waiting for it '
+             'there if it has\n'
+             'not finished (a herd of 1 000: 2-3 s), so that a bag replayed at any '
+             'rate gives the\n'
+             'same regimes at the same snapshot (adopted when the worker finished, '
+             'a replay\'s robots\n'
+             'drew their noise from another tick from run to run).')),
     'model_out': Param(
         'herd_model.yaml',
         ('model file written by ~/save_model and at stop; relative to the data '
