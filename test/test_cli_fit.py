@@ -100,6 +100,8 @@ BAD = {
     'fewer samples than parameters': lambda p: _write(p, _steps(n=6)),
     'missing column': lambda p: _write(p, ['0,a,1\n'], header='time,agent,x\n'),
     'not a file': lambda p: p.parent / 'nope.csv',
+    'agent id that is no ROS name': lambda p: _write(p, [ln.replace(',a,', ',60s,')
+                                                          for ln in _steps()]),
 }
 
 

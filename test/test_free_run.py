@@ -25,6 +25,10 @@ def test_shape_and_pace_by_hand():
     assert shape_and_pace(q, 1.0)['pace'][1] == pytest.approx(0.05)
     q[100:200, 0] = np.nan                                 # a missing stretch is skipped
     assert np.isfinite(shape_and_pace(q, 1.0)['distance']).all()
+    # a clock coarser than the 10-minute window (hourly fixes): the pace per step
+    h = np.zeros((40, 2, 2))
+    h[:, 1, 0] = 3600.0 * 0.02 * np.arange(40)             # 2 cm/s, one fix an hour
+    assert shape_and_pace(h, 3600.0)['pace'][1] == pytest.approx(0.02)
 
 
 def test_the_noise_free_truth_reproduces_its_data():

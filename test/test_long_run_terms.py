@@ -243,6 +243,21 @@ def test_an_agent_without_enough_data_keeps_its_fitted_field_and_gaussian_noise(
     np.testing.assert_allclose(flat[0], flat[1])
 
 
+def test_an_agent_that_never_moved_keeps_gaussian_noise_and_the_others_their_regimes():
+    """All-zero residuals (a calibration collar at rest, a fix repeated) gave the
+    compiled Baum-Welch a singular covariance and a ZeroDivisionError that stopped the
+    fit; now that agent is one with too few residuals: flat regimes, no BIC share."""
+    cov = np.array([1e-5 * np.eye(2), 0.03 * np.eye(2)])
+    trans = np.array([[0.9, 0.1], [0.2, 0.8]])
+    w = np.zeros((5000, 2, 2))
+    w[:, 0] = switching_noise(5000, cov, trans, seed=15)[0]
+    fit = fit_herd_regimes(w, counts=(1, 2))
+    assert fit['n_regimes'] == 2 and fit['too_few'] == [1]
+    assert all(np.isfinite(v) for v in fit['bic'].values())
+    with pytest.raises(HerdInputError, match='all zero'):
+        fit_regimes(np.zeros((200, 2)), 2)
+
+
 def test_the_home_gain_is_the_closed_form():
     # K = Δt/(2(1 − a)) Q Σ⁻¹ (S2), two agents at once: Σ = diag(4, 1), Q = diag(0.1, 0.2),
     # a = 0.9, Δt = 2 → 10 · diag(0.025, 0.2); the second agent's axes swapped

@@ -184,6 +184,9 @@ def run(args) -> int:
     bounds = parse_floats(args.bounds, 4, '--bounds') if args.bounds else None
     runs, datum = load_runs(args.data, dt=args.dt, smoother=args.smoother,
                            **filter_kwargs(args))
+    from herd_ros.model.model_file import check_agent_id
+    for agent in runs[0].agents:          # the model file needs them: say so before the fit
+        check_agent_id(agent)
     train, test = split_runs(runs, args.train_fraction)
     options = FitOptions(terms=terms, grids=grids, bounds=bounds, ridges=ridges, memory=memory,
                          memories=memories, law=None if args.law == 'auto' else args.law,

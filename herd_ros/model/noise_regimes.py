@@ -103,6 +103,9 @@ def fit_regimes(residuals: np.ndarray, n_regimes: int, iterations: int = 200,
         raise HerdInputError(f'noise regimes: {n} residuals are too few for {k} regimes')
     r0 = np.where(ok[:, None], r, 0.0)
     power = (r[ok] ** 2).sum(-1)
+    if not power.mean() > 0:
+        raise HerdInputError('noise regimes: the residuals are all zero (an agent that never '
+                             'moved)')
     edges = np.quantile(power, np.linspace(0, 1, k + 1))
     cov = np.empty((k, 2, 2))
     for j in range(k):
@@ -272,11 +275,14 @@ def subset_regimes(meta: dict, index) -> dict:
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model='numpy')
 def _em_step(r, ok, cov, trans, init):  # pragma: no cover - compiled
     """One Baum–Welch iteration (Rabiner 1989; scaled forward–backward): r (T, 2) residuals
     (0 where missing), ok (T,) 1/0, cov (K, 2, 2), trans (K, K), init (K,) -> (new cov, new
-    trans, new init, log L of the given parameters). A missing residual has emission 1."""
+    trans, new init, log L of the given parameters). A missing residual has emission 1.
+    Compiled with numpy's division (a degenerate regime gives inf/NaN and a NaN log L, as
+    uncompiled, which the BIC then passes over; Python's raised ZeroDivisionError on
+    residuals that are all zero, a collar that never moved)."""
     t_len = r.shape[0]
     k = cov.shape[0]
     inv = np.empty((k, 3))

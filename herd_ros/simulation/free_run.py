@@ -45,7 +45,9 @@ def shape_and_pace(positions: np.ndarray, dt: float, pace_window_s: float = PACE
                    ) -> dict[str, np.ndarray]:
     """Per animal (N,) each of :data:`STATISTICS` of ``positions`` (T, N, 2) on a clock of
     step ``dt`` (NaN = missing; a statistic with no data is NaN). The pace window is
-    ``pace_window_s`` or, for a run shorter than two windows, a quarter of the run."""
+    ``pace_window_s`` (at least one step: on a clock coarser than the window, the pace
+    is the displacement per step) or, for a run shorter than two windows, a quarter of
+    the run."""
     p = np.asarray(positions, dtype=float)
     T, n = p.shape[:2]
     d = np.sqrt(((p[:, None] - p[:, :, None]) ** 2).sum(-1))            # (T, N, N)
@@ -54,8 +56,8 @@ def shape_and_pace(positions: np.ndarray, dt: float, pace_window_s: float = PACE
         mean_d = np.nanmean(d, axis=2)                                  # (T, N)
         distance = np.nanmean(mean_d, axis=0)
         spread = np.nanstd(mean_d, axis=0)
-        w = int(round(pace_window_s / dt))
-        if T < 2 * max(w, 1):
+        w = max(int(round(pace_window_s / dt)), 1)
+        if T < 2 * w:
             w = max(T // 4, 1)
         disp = np.sqrt(((p[w:] - p[:-w]) ** 2).sum(-1)) if T > w else np.full((0, n), np.nan)
         pace = np.nanmean(disp, axis=0) / (w * dt)
