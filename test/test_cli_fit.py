@@ -102,6 +102,9 @@ BAD = {
     'not a file': lambda p: p.parent / 'nope.csv',
     'agent id that is no ROS name': lambda p: _write(p, [ln.replace(',a,', ',60s,')
                                                           for ln in _steps()]),
+    'agent only in the held-out part': lambda p: _write(p, _steps(agents=('a', 'b'))
+                                                        + [f'{k},c,5,5\n'
+                                                           for k in range(45, 50)]),
 }
 
 

@@ -48,8 +48,10 @@ def check_runs(runs: list[HerdTrajectory]) -> tuple[list[str], float]:
         present = np.isfinite(r.positions).all(-1)
         if not present.any(axis=0).all():
             gone = [a for a, have in zip(r.agents, present.any(axis=0)) if not have]
-            raise HerdInputError(f'run {r.run!r}: agent(s) {", ".join(gone)} have no position '
-                                 f'at all')
+            where = f'run {r.run!r}' if r.run is not None else 'the data fitted'
+            raise HerdInputError(f'{where}: agent(s) {", ".join(gone)} have no position at all '
+                                 f'(a collar whose fixes all fall in the held-out part: see '
+                                 f'--train-fraction, or leave it out of the file)')
     return agents, dt
 
 
