@@ -419,7 +419,7 @@ def _window_distance(tracks, fits, max_fixes, walk) -> np.ndarray:
     col = lambda v: np.asarray(v, float)[:, None]                       # noqa: E731
     tv = col([f.velocity_tau for f in fits])
     D = col([f.diffusion for f in fits])
-    sm2 = col([f.position_std ** 2 if np.isfinite(f.position_std) else 25.0 for f in fits])
+    sm2 = col([f.position_std ** 2 for f in fits])     # fitted: the windows have unknowns
     return one_step_distance(t, z, r, n, tv, D, sm2, walk)[:, 0]
 
 

@@ -420,6 +420,10 @@ def _background_thread():
         pass
 
 
+#: the largest HDOP taken as it is (a receiver's "no solution" value is often 99.9)
+MAX_HDOP = 50.0
+
+
 def fix_variance(cov_type, cov_ee, cov_nn, floor: float, hdop=None) -> np.ndarray:
     """A fix's variance per axis for the fit: the mean of its covariance's diagonal
     (floored) where NavSatFix gives one; otherwise NaN (unknown: σ_m², fitted), or −HDOP²
@@ -437,10 +441,6 @@ def fix_variance(cov_type, cov_ee, cov_nn, floor: float, hdop=None) -> np.ndarra
             scaled = ~known & (h > 0) & np.isfinite(h)
         out = np.where(scaled, -np.minimum(h, MAX_HDOP) ** 2, out)
     return out
-
-
-#: the largest HDOP taken as it is (a receiver's "no solution" value is often 99.9)
-MAX_HDOP = 50.0
 
 
 def fix_hdop(var) -> np.ndarray:
