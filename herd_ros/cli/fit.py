@@ -8,15 +8,12 @@ import numpy as np
 
 from herd_ros.cli.common import parse_floats, parse_grid, progress
 from herd_ros.cli.ingest import add_filter_arguments, filter_kwargs
-from herd_ros.data_sources import load_runs
 from herd_ros.errors import HerdInputError
-from herd_ros.estimation.herd_fit import split_runs
-from herd_ros.estimation.model_selection import (FIELD_CELLS, FOLDS, MEMORIES,
-                                                 PAIRWISE_MAX_AGENTS, RIDGES, TERMS)
-from herd_ros.estimation.validation import skill_lines
-from herd_ros.herd_dynamics import FitOptions, HerdDynamics
-from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS
-from herd_ros.model.velocity_memory import check_memory
+from herd_ros.fit_defaults import (DEFAULT_MIN_VISITS, FIELD_CELLS, FOLDS, MEMORIES,
+                                   PAIRWISE_MAX_AGENTS, RIDGES, TERMS)
+
+# the fit, the model and the data readers are imported where they are used: `herd-ros fit
+# --help` then reads no more than argparse and numpy
 
 HELP = 'fit the herd model to a trajectory CSV, GPS CSV or bag; write the model file'
 
@@ -145,6 +142,7 @@ def _memories(args) -> tuple[float, tuple]:
     """(κ of every candidate, other κ tried) from ``--velocity-memory``."""
     if args.velocity_memory == 'auto':
         return 1.0, MEMORIES
+    from herd_ros.model.velocity_memory import check_memory
     try:
         return check_memory(args.velocity_memory), ()
     except HerdInputError as err:
@@ -153,6 +151,11 @@ def _memories(args) -> tuple[float, tuple]:
 
 def run(args) -> int:
     """Run the verb on the parsed ``args``; returns the exit status."""
+    from herd_ros.data_sources import load_runs
+    from herd_ros.estimation.herd_fit import split_runs
+    from herd_ros.estimation.validation import skill_lines
+    from herd_ros.herd_dynamics import FitOptions, HerdDynamics
+
     # '' = auto (the selection may nominate a driver); 'none' = no own profile
     own_agents = [a.strip() for a in args.interact_with_own_profile.split(',') if a.strip()]
     if own_agents == ['none']:

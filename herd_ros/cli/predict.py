@@ -11,13 +11,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
-from herd_ros.data_sources import is_trajectory_csv, load_runs
 from herd_ros.errors import HerdInputError
-from herd_ros.herd_dynamics import HerdDynamics
-from herd_ros.model.model_file import write_atomic
-from herd_ros.simulation.prediction import CHI2_2_90
+
+# the verb's work imports pandas, the model and the data readers where it needs them:
+# `herd-ros predict --help` then reads no more than argparse
 
 HELP = 'predict every agent K steps ahead with a model file, with the covariance'
 
@@ -34,6 +32,7 @@ def add_arguments(p):
 
 def _runs_for(model, path):
     """The data's runs on the model's clock and frame, columns in the model's agent order."""
+    from herd_ros.data_sources import is_trajectory_csv, load_runs
     path = Path(path)
     if is_trajectory_csv(path):
         runs, _ = load_runs(path)
@@ -54,6 +53,11 @@ def _runs_for(model, path):
 
 def run(args) -> int:
     """Run the verb on the parsed ``args``; returns the exit status."""
+    import pandas as pd
+
+    from herd_ros.herd_dynamics import HerdDynamics
+    from herd_ros.model.model_file import write_atomic
+    from herd_ros.simulation.prediction import CHI2_2_90
     if args.steps < 1:
         raise HerdInputError(f'--steps must be at least 1, got {args.steps}')
     dyn = HerdDynamics.load(args.model)

@@ -4,9 +4,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from herd_ros.data_sources import load_runs
-from herd_ros.estimation.validation import skill_lines
-from herd_ros.herd_dynamics import HerdDynamics
 
 HELP = 'figures (paper Figs. 2-6) and summary.json of a model file on a data file'
 
@@ -22,6 +19,9 @@ def add_arguments(p):
 
 def run(args) -> int:
     """Run the verb on the parsed ``args``; returns the exit status."""
+    from herd_ros.data_sources import load_runs
+    from herd_ros.estimation.validation import skill_lines
+    from herd_ros.herd_dynamics import HerdDynamics
     from herd_ros.report.fit_figures import write_fit_figures
     dyn = HerdDynamics.load(args.model)
     runs, _ = load_runs(args.data, dt=args.dt or dyn.model.dt)

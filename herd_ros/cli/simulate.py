@@ -4,13 +4,10 @@ from __future__ import annotations
 import numpy as np
 
 from herd_ros.cli.common import progress
-from herd_ros.data_sources import load_runs
 from herd_ros.errors import HerdInputError
-from herd_ros.herd_dynamics import HerdDynamics
-from herd_ros.nan_stats import empty_slices_quiet
-from herd_ros.simulation.herd_simulator import first_pairs
-from herd_ros.simulation.statistics import herd_statistics
-from herd_ros.trajectory import HerdTrajectory, write_trajectory_csv
+
+# the model, the simulator and the data readers are imported where they are used:
+# `herd-ros simulate --help` then reads no more than argparse
 
 HELP = ('simulate the learned laws of a model file (noise from each agent\'s Q_i, or its '
         'noise regimes when the file has them, times its noise_scale)')
@@ -51,6 +48,7 @@ def default_initial_positions(model, seed=0):
 def first_state(p: np.ndarray, dt: float, source) -> tuple[np.ndarray, np.ndarray]:
     """p^0 and u^0 of every agent from the first two consecutive steps where it is present
     (collars start late: the first row of a real recording has agents missing)."""
+    from herd_ros.simulation.herd_simulator import first_pairs
     k, found = first_pairs(p)
     if not found.all():
         raise HerdInputError(f'{source}: an agent is never present at two consecutive steps')
@@ -63,6 +61,7 @@ def aligned_data(run, positions, dt: float):
     row — where the simulation's first step stands (an agent that starts later is started
     from its own first positions and is absent from the data until then) — when the run is
     on the model's clock; else None."""
+    from herd_ros.simulation.herd_simulator import first_pairs
     steps = np.diff(run.times)
     if not len(steps) or not np.allclose(steps, dt, rtol=1e-6, atol=1e-9):
         return None
@@ -73,6 +72,7 @@ def compare_with_data(seen, span, dt: float, source) -> str:
     """The free-run statistics of the simulation against the initial trajectory over the
     steps both cover: ``seen`` the simulation seen where the data ``span`` are
     (:func:`~herd_ros.simulation.free_run.observed_like`)."""
+    from herd_ros.nan_stats import empty_slices_quiet
     from herd_ros.simulation.free_run import STATISTICS, shape_and_pace
     if len(span) < 4:
         return f'(too few steps of {source} to compare with)'
@@ -89,6 +89,11 @@ def compare_with_data(seen, span, dt: float, source) -> str:
 
 def run(args) -> int:
     """Run the verb on the parsed ``args``; returns the exit status."""
+    from herd_ros.data_sources import load_runs
+    from herd_ros.herd_dynamics import HerdDynamics
+    from herd_ros.simulation.statistics import herd_statistics
+    from herd_ros.trajectory import HerdTrajectory, write_trajectory_csv
+
     if args.steps < 2:
         raise HerdInputError(f'--steps must be at least 2, got {args.steps}')
     dyn = HerdDynamics.load(args.model)

@@ -3,11 +3,9 @@ from __future__ import annotations
 
 from herd_ros.cli.common import parse_floats, parse_grid, progress
 from herd_ros.errors import HerdInputError
-from herd_ros.model import kinds
-from herd_ros.model.herd_model import HerdModel
-from herd_ros.simulation.herd_simulator import simulate
-from herd_ros.synthesis.known_truth import initial_positions, make_truth_model
-from herd_ros.trajectory import write_trajectory_csv
+
+# the model, the simulator and the writers are imported where they are used: `herd-ros
+# synth --help` then reads no more than argparse
 
 HELP = 'synthesize herd data: from a herd-model law (known truth) or the realistic cow scenario'
 
@@ -50,10 +48,14 @@ def run(args) -> int:
 
 
 def _law(args) -> int:
+    from herd_ros.model import kinds
+    from herd_ros.model.herd_model import HerdModel
+    from herd_ros.simulation.herd_simulator import simulate
+    from herd_ros.synthesis.known_truth import initial_positions, make_truth_model
+    from herd_ros.trajectory import write_trajectory_csv
     if args.model:
         truth = kinds.load(args.model)
         if not isinstance(truth, HerdModel):
-            from herd_ros.errors import HerdInputError
             raise HerdInputError(f'{args.model}: synth --law schwager simulates the pairwise '
                                  f'law (kind schwager2007)')
     else:
@@ -76,6 +78,7 @@ def _law(args) -> int:
 
 def _cows(args) -> int:
     from herd_ros.synthesis.cow_scenario import simulate_cow_herd
+    from herd_ros.trajectory import write_trajectory_csv
     traj = simulate_cow_herd(n_cows=args.agents, duration_s=args.duration, dt=args.dt,
                              seed=args.seed, start_time=_epoch(args.start_time))
     write_trajectory_csv(args.output, traj)

@@ -59,32 +59,22 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from herd_ros.errors import HerdInputError
+# the candidate sets, named here too (model_selection.RIDGES, ...)
+from herd_ros.fit_defaults import (DEFAULT_MIN_VISITS, FIELD_CELLS, FOLDS,  # noqa: F401
+                                   MEMORIES, PAIRWISE_MAX_AGENTS, RIDGES,
+                                   SAMPLES_PER_FIELD_CELL, TERMS)
 from herd_ros.model.alignment import AlignmentKernel
-from herd_ros.model.rbf_field import DEFAULT_MIN_VISITS, FieldGrid, RbfBasis
+from herd_ros.model.rbf_field import FieldGrid, RbfBasis
 from herd_ros.model.regressors import AgentRegression, interaction_columns, velocities
 from herd_ros.model.shared_law import DEFAULT_PROFILE_SIZE, DistanceProfile, shared_columns
 from herd_ros.model.velocity_memory import check_memory, memory_velocities
 
-#: Up to this many agents the interactions are the paper's pairwise law; more get the
-#: shared distance profile.
-PAIRWISE_MAX_AGENTS = 6
-#: Ridge values tried (0 = plain least squares).
-RIDGES = (0.0, 1e-3, 1e-2, 1e-1)
-#: Field cells tried (each arranged to the region's aspect ratio), at most one cell per
-#: :data:`SAMPLES_PER_FIELD_CELL` samples of an agent.
-FIELD_CELLS = (4, 16, 64)
-SAMPLES_PER_FIELD_CELL = 40
-#: Contiguous blocks per run.
-FOLDS = 10
 #: A driver (an agent worth its own profile) is screened for in shared-law herds up to this
 #: size (the screen costs O(N²) per sampled step), on up to this many steps.
 SCREEN_MAX_AGENTS = 100
 SCREEN_STEPS = 4000
-TERMS = ('damping', 'damping+field', 'damping+interactions', 'damping+interactions+field')
 #: The least relative drop of the CV mean squared error that keeps the velocity alignment.
 ALIGNMENT_MIN_GAIN = 0.01
-#: Velocity memories κ tried on the structure chosen with κ = 1 (:mod:`velocity_memory`).
-MEMORIES = (0.6, 0.35, 0.2)
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from herd_ros.errors import HerdInputError
+from herd_ros.fit_defaults import DEFAULT_MIN_VISITS  # noqa: F401 - named here too
 
 try:
     from numba import njit
@@ -31,8 +32,6 @@ SQRT_2PI = float(np.sqrt(2.0 * np.pi))
 #: tick), above it with the compiled loop (runs, simulations).
 SMALL_FIELD_EVALUATION = 50_000
 
-#: Default number of samples of an agent that must fall in a cell to keep its centre.
-DEFAULT_MIN_VISITS = 10
 
 
 @dataclass(frozen=True)
