@@ -22,7 +22,11 @@ kept raw fix before it. Fix by fix (:func:`paired`): the share of fixes at which
 is the closer, with its Wilson interval, and the median paired difference.
 
     .venv/bin/python test/bench/bench_tracking.py [--seeds N] [--herds baboons,steers,cows]
-        [--motion-model auto|fit|fixed] [--json FILE]
+        [--motion-model auto|fit|fixed] [--no-predictors] [--json FILE]
+
+Then, on the real herds, simple causal predictors fed only the genuine fixes
+(:func:`simple_predictors`): the bound the recordings set on any one-step predictor of
+those families, the filter's among them.
 """
 import argparse
 import sys
@@ -177,6 +181,49 @@ def wins(r) -> dict:
     return {s: r['track'][s] <= r['last_raw_fix'][s] for s in STATS}
 
 
+#: the simple causal predictors of :func:`simple_predictors`: exponential smoothing of the
+#: fixes (weight α on the newest) and the last fix plus a share β of its velocity carried
+#: for a correlation time τ (s), the velocity from the last two fixes
+SMOOTHING = (0.95, 0.9, 0.8)
+CARRY = ((0.5, 10.0), (0.5, 30.0), (1.0, 30.0), (0.5, 120.0))
+
+
+def simple_predictors(fixes_by_seed) -> dict:
+    """How the simple causal predictors do on the genuine fixes of a herd's duty-cycled
+    collars (every seed pooled): each predictor sees only the genuine fixes (it is told
+    which are bursts: an oracle on outliers no filter has), and at each genuine fix after
+    a collar's second predicts it from those before. {name: summarise(distances)}: the
+    last genuine fix, :data:`SMOOTHING` and :data:`CARRY`. What they show: whether any
+    predictor of these families, the Kalman filter's one-step predictions among them (its
+    gain is a smoothing weight, its velocity a carry), can beat the last fix at all."""
+    from scipy.signal import lfilter
+    out = {}
+    for fixes in fixes_by_seed:
+        g = fixes[~fixes['burst'].to_numpy()]
+        for _, c in g.groupby('agent', sort=False):
+            c = c.sort_values('time', kind='stable')
+            t = c['time'].to_numpy(float)
+            z = c[['x', 'y']].to_numpy(float)
+            keep = np.concatenate([[True], np.diff(t) > 0])
+            t, z = t[keep], z[keep]
+            if len(t) < 3:
+                continue
+            target, last = z[2:], z[1:-1]
+            d_prev, d_next = np.diff(t)[:-1], np.diff(t)[1:]
+            v = (z[1:-1] - z[:-2]) / d_prev[:, None]
+            preds = {'last genuine fix': last}
+            for a in SMOOTHING:
+                s = np.column_stack([lfilter([a], [1.0, a - 1.0], z[:, j],
+                                             zi=[(1.0 - a) * z[0, j]])[0] for j in (0, 1)])
+                preds[f'smoothing a={a:g}'] = s[1:-1]
+            for beta, tau in CARRY:
+                reach = tau * (1.0 - np.exp(-d_next / tau))
+                preds[f'carry b={beta:g} tau={tau:g} s'] = last + beta * v * reach[:, None]
+            for name, p in preds.items():
+                out.setdefault(name, []).append(np.hypot(*(target - p).T))
+    return {name: summarise(np.concatenate(d)) for name, d in out.items()}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--seeds', type=int, default=3)
@@ -184,6 +231,9 @@ def main(argv=None):
     ap.add_argument('--motion-model', default='auto', choices=('auto', 'fit', 'fixed'))
     ap.add_argument('--no-dense', action='store_true')
     ap.add_argument('--json', default=None, help='also write the results here')
+    ap.add_argument('--no-predictors', action='store_true',
+                    help='skip the simple causal predictors on the real herds\' genuine '
+                         'fixes (simple_predictors)')
     args = ap.parse_args(argv)
     res = run(args.herds.split(','), args.seeds, dense=not args.no_dense,
               motion_model=args.motion_model)
@@ -211,6 +261,19 @@ def main(argv=None):
                   + ('beats or ties it on every statistic' if not lost
                      else f'loses on {", ".join(lost)}'))
         print(f'{herd}: ingest {r["ingest_s"]:.2f} s per run')
+    if not args.no_predictors:
+        print('simple causal predictors, fed only the genuine fixes (told which are bursts), '
+              'at each genuine fix after a collar\'s second (m)')
+        for herd in res:
+            if herd == 'cows':
+                continue
+            rec = recorded_baboons() if herd == 'baboons' else recorded_steers()
+            model = CollarErrorModel.real_collar(fix_interval_range=INTERVALS)
+            table = simple_predictors([duty_cycle_recorded_fixes(rec, seed=seed, model=model)
+                                       for seed in range(args.seeds)])
+            res[herd]['simple_predictors'] = table
+            for name, summary in table.items():
+                print(f'{herd + " / " + name:49s} {fmt(summary)}')
     if args.json:
         import json
         Path(args.json).write_text(json.dumps(res, indent=1))
