@@ -41,3 +41,18 @@ def test_a_gaussian_known_truth_keeps_gaussian_noise():
         [run], lambda runs: fit_herd(runs, grid=(4, 4), bounds=(-75, 75, -75, 75)).model),
         space_use=False)
     assert not keep and figures.get('regimes', 1) == 1, figures
+
+
+def test_a_choice_whose_free_run_error_has_no_value_says_so():
+    """A tail on which a statistic is zero (one agent: no distance to others) gives a free-run
+    error of inf; the fit's line says n/a and why, never 'inf'."""
+    from herd_ros.estimation.field_choice import describe_choice, free_run_error
+    flat = {'herd': {k: {'median': 0.0, 'data': 0.0} for k in
+                     ('mean_distance', 'distance_spread', 'pace')}}
+    err = free_run_error(flat, ('mean_distance',))
+    assert err == float('inf')
+    line = describe_choice('field', {'kept': False,
+                                     'fitted': {'free_run_error': err, 'one_step': 0.5},
+                                     'space_use': {'free_run_error': 0.25, 'one_step': 0.52}})
+    assert 'inf' not in line and 'n/a' in line and '0.25' in line, line
+    assert 'zero or undefined' in line

@@ -238,6 +238,12 @@ def choose_noise_regimes(check: ValidationTail, space_use: bool, seeds: int = SE
 
 
 
+def _error(x: float) -> str:
+    """A free-run error as printed: 'n/a' where a statistic of the run or the data is zero
+    or undefined (:func:`free_run_error` is then inf)."""
+    return f'{x:.2f}' if np.isfinite(x) else 'n/a'
+
+
 def describe_choice(name: str, figures: dict) -> str:
     """One line: what :func:`choose_space_use` (``name`` 'field'),
     :func:`choose_herd_place` ('place') or :func:`choose_noise_regimes` ('noise') kept
@@ -251,17 +257,20 @@ def describe_choice(name: str, figures: dict) -> str:
     kept = extra if figures.get('kept') else plain
     if field:
         f, s = figures['fitted'], figures['space_use']
-        why = (f'free-run error {s["free_run_error"]:.2f} with space-use vs '
-               f'{f["free_run_error"]:.2f} fitted, one-step RMS {s["one_step"]:.4f} vs '
+        why = (f'free-run error {_error(s["free_run_error"])} with space-use vs '
+               f'{_error(f["free_run_error"])} fitted, one-step RMS {s["one_step"]:.4f} vs '
                f'{f["one_step"]:.4f}')
     elif name == 'herd place':
         w, p = figures['without'], figures['with']
-        why = (f'free-run error {p["free_run_error"]:.2f} with the places vs '
-               f'{w["free_run_error"]:.2f} without, one-step RMS {p["one_step"]:.4f} vs '
+        why = (f'free-run error {_error(p["free_run_error"])} with the places vs '
+               f'{_error(w["free_run_error"])} without, one-step RMS {p["one_step"]:.4f} vs '
                f'{w["one_step"]:.4f}')
     else:
         r, g = figures['regimes'], figures['gaussian']
         why = (f'free-run error with {figures["regimes_count"]} regimes vs gaussian: all '
-               f'statistics {r["free_run_error"]:.2f} vs {g["free_run_error"]:.2f}, shape '
-               f'{r["shape_error"]:.2f} vs {g["shape_error"]:.2f}')
+               f'statistics {_error(r["free_run_error"])} vs {_error(g["free_run_error"])}, '
+               f'shape {_error(r["shape_error"])} vs {_error(g["shape_error"])}')
+    if 'n/a' in why:
+        why += ('; n/a: a statistic of the run or the tail is zero or undefined there, '
+                'so the error has no value')
     return f'{name}: {kept} (validation tail of the training data: {why})'
