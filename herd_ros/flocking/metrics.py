@@ -20,8 +20,6 @@ graph is then the r-disc graph among the members only.
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from herd_ros.flocking.olfati_saber import CircularObstacles, neighbour_pairs
 
@@ -53,6 +51,8 @@ def cohesion_radius(positions) -> float:
 
 def relative_connectivity(n: int, pairs) -> float:
     """C = rank(L)/(n − 1) = (n − #components)/(n − 1) for the graph with edges ``pairs``."""
+    from scipy.sparse import coo_matrix     # here: `herd-ros flock --help` imports no scipy
+    from scipy.sparse.csgraph import connected_components
     if n < 2:
         return 1.0
     pairs = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)

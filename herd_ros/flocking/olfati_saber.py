@@ -59,7 +59,6 @@ import math
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from herd_ros.errors import HerdInputError
 
@@ -273,6 +272,7 @@ def neighbour_pairs(positions, radius: float) -> np.ndarray:
         (P, 2) int array (scipy cKDTree.query_pairs; ``<= radius`` there, boundary pairs
         carry zero weight anyway since ρ_h(1) = 0).
     """
+    from scipy.spatial import cKDTree     # here: `herd-ros flock --help` imports no scipy
     positions = np.asarray(positions, dtype=float)
     if len(positions) < 2:
         return np.zeros((0, 2), dtype=np.intp)
