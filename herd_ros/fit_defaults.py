@@ -16,7 +16,7 @@ FIELD_CELLS = (4, 16, 64)
 SAMPLES_PER_FIELD_CELL = 40
 #: Contiguous blocks per run.
 FOLDS = 10
-#: The structures tried (each also with the velocity alignment, :mod:`alignment`).
+#: The structures (model terms) the selection tries; `fit --terms full` is the last one.
 TERMS = ('damping', 'damping+field', 'damping+interactions', 'damping+interactions+field')
 #: Velocity memories κ tried on the structure chosen with κ = 1 (:mod:`velocity_memory`).
 MEMORIES = (0.6, 0.35, 0.2)
