@@ -257,20 +257,23 @@ def describe_choice(name: str, figures: dict) -> str:
     kept = extra if figures.get('kept') else plain
     if field:
         f, s = figures['fitted'], figures['space_use']
+        errors = (s['free_run_error'], f['free_run_error'])
         why = (f'free-run error {_error(s["free_run_error"])} with space-use vs '
                f'{_error(f["free_run_error"])} fitted, one-step RMS {s["one_step"]:.4f} vs '
                f'{f["one_step"]:.4f}')
     elif name == 'herd place':
         w, p = figures['without'], figures['with']
+        errors = (p['free_run_error'], w['free_run_error'])
         why = (f'free-run error {_error(p["free_run_error"])} with the places vs '
                f'{_error(w["free_run_error"])} without, one-step RMS {p["one_step"]:.4f} vs '
                f'{w["one_step"]:.4f}')
     else:
         r, g = figures['regimes'], figures['gaussian']
+        errors = (r['free_run_error'], g['free_run_error'], r['shape_error'], g['shape_error'])
         why = (f'free-run error with {figures["regimes_count"]} regimes vs gaussian: all '
                f'statistics {_error(r["free_run_error"])} vs {_error(g["free_run_error"])}, '
                f'shape {_error(r["shape_error"])} vs {_error(g["shape_error"])}')
-    if 'n/a' in why:
+    if not np.isfinite(errors).all():
         why += ('; n/a: a statistic of the run or the tail is zero or undefined there, '
                 'so the error has no value')
     return f'{name}: {kept} (validation tail of the training data: {why})'

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from herd_ros.errors import HerdInputError
-from herd_ros.fit_defaults import DEFAULT_MIN_VISITS  # noqa: F401 - named here too
+from herd_ros.fit_defaults import DEFAULT_MIN_VISITS
 
 try:
     from numba import njit

@@ -29,6 +29,7 @@ Then, on the real herds, simple causal predictors fed only the genuine fixes
 those families, the filter's among them.
 """
 import argparse
+import functools
 import sys
 import time
 from pathlib import Path
@@ -67,15 +68,28 @@ def recorded_steers():
     return pd.read_csv(ROOT / 'bags' / 'steers_72h.csv')[['time', 'agent', 'x', 'y']]
 
 
-def real_case(recorded, seed, **ingest):
+@functools.lru_cache(maxsize=None)
+def recorded(herd):
+    """A shipped real herd's recording (read once)."""
+    return recorded_baboons() if herd == 'baboons' else recorded_steers()
+
+
+@functools.lru_cache(maxsize=None)
+def duty_cycled(herd, seed):
+    """A real herd's recording seen through the duty-cycled collars, one seed (made once:
+    the tracking and :func:`simple_predictors` score the same fixes)."""
     model = CollarErrorModel.real_collar(fix_interval_range=INTERVALS)
-    fixes = duty_cycle_recorded_fixes(recorded, seed=seed, model=model)
+    return duty_cycle_recorded_fixes(recorded(herd), seed=seed, model=model)
+
+
+def real_case(herd, seed, **ingest):
+    fixes = duty_cycled(herd, seed)
     counts = fixes.groupby('agent')['time'].transform('size')
     fixes = fixes[counts >= 5].reset_index(drop=True)     # collars left with a few fixes
     t0 = time.perf_counter()
     planar = planar_fixes(fixes)
     traj = trajectory_from_fixes(planar, ingest.pop('dt', None) or track_dt(planar), **ingest)
-    return fixes, traj, time.perf_counter() - t0, recorded
+    return fixes, traj, time.perf_counter() - t0, recorded(herd)
 
 
 def cows_case(seed, **ingest):
@@ -149,8 +163,7 @@ def run(herds, seeds, dense=True, **ingest):
             if herd == 'cows':
                 fixes, traj, el, rec = cows_case(seed, **ingest)
             else:
-                rec = recorded_baboons() if herd == 'baboons' else recorded_steers()
-                fixes, traj, el, rec = real_case(rec, seed, **ingest)
+                fixes, traj, el, rec = real_case(herd, seed, **ingest)
             secs += el
             for key, mask in (('genuine', ~fixes['burst'].to_numpy()), ('all', None)):
                 for w, (d_t, d_r) in (
@@ -267,10 +280,7 @@ def main(argv=None):
         for herd in res:
             if herd == 'cows':
                 continue
-            rec = recorded_baboons() if herd == 'baboons' else recorded_steers()
-            model = CollarErrorModel.real_collar(fix_interval_range=INTERVALS)
-            table = simple_predictors([duty_cycle_recorded_fixes(rec, seed=seed, model=model)
-                                       for seed in range(args.seeds)])
+            table = simple_predictors([duty_cycled(herd, seed) for seed in range(args.seeds)])
             res[herd]['simple_predictors'] = table
             for name, summary in table.items():
                 print(f'{herd + " / " + name:49s} {fmt(summary)}')
