@@ -22,7 +22,15 @@ kept raw fix before it. Fix by fix (:func:`paired`): the share of fixes at which
 is the closer, with its Wilson interval, and the median paired difference.
 
     .venv/bin/python test/bench/bench_tracking.py [--seeds N] [--herds baboons,steers,cows]
-        [--motion-model auto|fit|fixed] [--no-predictors] [--json FILE]
+        [--recording FILE ...] [--motion-model auto|fit|fixed] [--no-predictors]
+        [--json FILE]
+
+``--recording FILE`` (repeatable) scores a recording of your own the same way, beside the
+shipped herds or alone (``--herds ''``): a trajectory CSV of planar fixes
+(``time,agent,x,y`` in metres, RTLS/UWB) or any fix file ``herd-ros ingest`` reads (GPS
+CSV, Movebank CSV, GPX, rosbag2), GPS taken to ENU metres about its first valid fix. It is
+seen through the same duty-cycled collars (the recording's own error kept), named by its
+file name.
 
 Then, on the real herds, simple causal predictors fed only the genuine fixes
 (:func:`simple_predictors`): the bound the recordings set on any one-step predictor of
@@ -42,8 +50,9 @@ ROOT = HERE.parents[1]
 sys.path.insert(0, str(ROOT))
 
 from herd_ros.ingest.geodesy import geodetic_to_enu  # noqa: E402
-from herd_ros.ingest.pipeline import (load_fixes, planar_fixes, track_dt,  # noqa: E402
-                                      trajectory_from_fixes)
+from herd_ros.ingest.pipeline import (choose_datum, fixes_enu, load_fixes,  # noqa: E402
+                                      planar_fixes, track_dt, trajectory_from_fixes,
+                                      valid_fix_mask)
 from herd_ros.ingest.tracking_score import (STATS, collar_track_distances,  # noqa: E402
                                             next_fix_distances, paired, summarise)
 from herd_ros.synthesis.collar_errors import (CollarErrorModel,  # noqa: E402
@@ -68,9 +77,32 @@ def recorded_steers():
     return pd.read_csv(ROOT / 'bags' / 'steers_72h.csv')[['time', 'agent', 'x', 'y']]
 
 
+#: recordings given with ``--recording``: {name: path}
+RECORDINGS: dict = {}
+
+
+def recorded_file(path) -> pd.DataFrame:
+    """A recording of one's own (``--recording``) as ``time, agent, x, y`` (m): a
+    trajectory CSV of planar fixes as it is; a fix file (:func:`load_fixes`) without its
+    NO_FIX and NaN fixes, in ENU about its first valid fix (:func:`choose_datum`)."""
+    from herd_ros.data_sources import is_trajectory_csv, planar_fixes_from_runs
+    path = Path(path)
+    if is_trajectory_csv(path):
+        fixes = planar_fixes_from_runs(path)
+        x, y = fixes['east'].to_numpy(float), fixes['north'].to_numpy(float)
+    else:
+        fixes = load_fixes(path)
+        fixes = fixes[valid_fix_mask(fixes)].reset_index(drop=True)
+        x, y = fixes_enu(fixes, choose_datum(fixes))
+    return pd.DataFrame({'time': fixes['time'].to_numpy(float),
+                         'agent': fixes['agent'].astype(str).to_numpy(), 'x': x, 'y': y})
+
+
 @functools.lru_cache(maxsize=None)
 def recorded(herd):
-    """A shipped real herd's recording (read once)."""
+    """A real herd's recording, shipped or given with ``--recording`` (read once)."""
+    if herd in RECORDINGS:
+        return recorded_file(RECORDINGS[herd])
     return recorded_baboons() if herd == 'baboons' else recorded_steers()
 
 
@@ -240,7 +272,11 @@ def simple_predictors(fixes_by_seed) -> dict:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--seeds', type=int, default=3)
-    ap.add_argument('--herds', default='baboons,steers,cows')
+    ap.add_argument('--herds', default='baboons,steers,cows',
+                    help="shipped herds, comma-separated ('' for none)")
+    ap.add_argument('--recording', action='append', default=[], metavar='FILE',
+                    help='also a recording of your own (repeatable): a trajectory CSV of '
+                         'planar fixes (time,agent,x,y) or a GPS file herd-ros ingest reads')
     ap.add_argument('--motion-model', default='auto', choices=('auto', 'fit', 'fixed'))
     ap.add_argument('--no-dense', action='store_true')
     ap.add_argument('--json', default=None, help='also write the results here')
@@ -248,8 +284,18 @@ def main(argv=None):
                     help='skip the simple causal predictors on the real herds\' genuine '
                          'fixes (simple_predictors)')
     args = ap.parse_args(argv)
-    res = run(args.herds.split(','), args.seeds, dense=not args.no_dense,
-              motion_model=args.motion_model)
+    herds = [h for h in args.herds.split(',') if h]
+    for path in args.recording:
+        if not Path(path).exists():
+            ap.error(f'--recording {path}: no such file or directory')
+        name = Path(path).name
+        while name in herds:
+            name += "'"
+        RECORDINGS[name] = path
+        herds.append(name)
+    if not herds:
+        ap.error('nothing to score: give --herds or --recording')
+    res = run(herds, args.seeds, dense=not args.no_dense, motion_model=args.motion_model)
     print(f'tracking on duty-cycled collars (fixes every {INTERVALS[0]:g}-{INTERVALS[1]:g} s, '
           f'real-collar faults), {args.seeds} seeds, motion model: {args.motion_model}; '
           f'distance to the next fix (m)')
