@@ -1,8 +1,9 @@
 """Both hypotheses kept after a track moves (collar_filter, *the place the track left*): a
 burst within reach that the track followed does not hold it when the fixes come back — the
 track returns on the first fix back, inside the gate of the place it left — nor does a
-single far fix that the walk component took, while a real move to a new place is kept, and
-the compiled bank does the same fix by fix."""
+single far fix that the walk component took (nor a second one while the place left the
+first time is still held), while a real move to a new place is kept, and the compiled bank
+does the same fix by fix."""
 import numpy as np
 import pytest
 
@@ -102,6 +103,36 @@ def test_a_far_fix_the_walk_took_does_not_hold_the_track():
     assert np.hypot(*f.x[:2]) < 20.0
 
 
+def second_far_fix(seed=0, stay=4, k_back=4):
+    """:func:`single_far_fix`'s walk, but the animal stays at the far place C (150 m off,
+    ``stay`` fixes a minute apart: the track follows it, the place it left still held),
+    then, after 280 s of silence, one fix 400 m from C (within reach: the walk takes it),
+    then ``k_back`` fixes at C again a minute apart (400 m in a minute: beyond reach)."""
+    rng = np.random.default_rng(seed)
+    t = np.r_[60.0 * np.arange(HOME), 60.0 * (HOME - 1) + 240.0 + 60.0 * np.arange(1 + stay)]
+    t = np.r_[t, t[-1] + 280.0, t[-1] + 280.0 + 60.0 * np.arange(1, k_back + 1)]
+    z = rng.normal(0.0, 5.0, (len(t), 2))
+    z[HOME:] += [150.0, 0.0]
+    z[HOME + 1 + stay] += [0.0, 400.0]
+    return t, z
+
+
+def test_a_second_far_fix_while_a_place_is_held_does_not_hold_the_track():
+    """Real cattle loggers leave for a fix again before the place left the first time is
+    forgotten (doc/gps_ingest.md): both places are kept, and the fixes back at the
+    second go back to it at once (with the first place alone they were a jump: refused
+    until the collar went stale)."""
+    t, z = second_far_fix()
+    f = CollarFilter(walk_params())
+    out = [f.update(s, e, n) for s, (e, n) in zip(t, z)]
+    far = HOME + 5
+    assert out[HOME].reason == 'accepted' and out[far].reason == 'accepted'  # the walk's
+    assert out[far + 1].reason == 'reinitialised'            # back at C at once
+    assert all(r.accepted for r in out[far + 1:])
+    assert np.hypot(*(f.x[:2] - [150.0, 0.0])) < 20.0
+    assert f.left_place is None and f.left_recent is None
+
+
 def test_without_a_place_left_the_fixes_back_are_a_jump():
     """The same fixes when the track reached the burst place by walking there (accepted
     fix by fix, no chain adopted): nothing is kept, and the way back is a jump."""
@@ -126,7 +157,8 @@ def test_a_real_move_is_kept_and_the_place_left_forgotten():
 @pytest.mark.parametrize('walk', [False, True])
 def test_the_bank_does_the_same_fix_by_fix(walk):
     cases = [away_and_back(), away_and_back(k_away=4, k_back=3, seed=1),
-             away_and_back(k_away=20, k_back=0, seed=2), single_far_fix(3)]
+             away_and_back(k_away=20, k_back=0, seed=2), single_far_fix(3),
+             second_far_fix(4), second_far_fix(5, stay=2, k_back=1)]
     p = walk_params() if walk else params()
     bank = CollarBank(len(cases), p)
     for i, (t, z) in enumerate(cases):
@@ -138,3 +170,4 @@ def test_the_bank_does_the_same_fix_by_fix(walk):
         assert [OUTCOMES[c] for c in batch.outcome] == [r.reason for r in ref]
         assert np.allclose(bank.x[i], f.x, atol=1e-9)
         assert np.isnan(bank.left_place[i, 0]) == (f.left_place is None)
+        assert np.isnan(bank.left_place[i, 8]) == (f.left_recent is None)

@@ -114,7 +114,7 @@ def test_bad_fixes_are_left_out_not_fatal():
 def test_the_compiled_likelihood_is_the_vectorised_one():
     from herd_ros.ingest import collar_bank
     from herd_ros.ingest.motion_fit import (_pack, innovation_loglik,
-                                            innovation_loglik_numpy, one_step_distance)
+                                            innovation_loglik_numpy, one_step_distances)
     if not collar_bank.AVAILABLE:
         pytest.skip('no compiled kernels')
     rng = np.random.default_rng(12)
@@ -129,7 +129,7 @@ def test_the_compiled_likelihood_is_the_vectorised_one():
         np.testing.assert_allclose(innovation_loglik(t, z, rr, n, tv, D, sm, walk),
                                    innovation_loglik_numpy(t, z, rr, n, tv, D, sm, walk),
                                    rtol=1e-10)
-        np.testing.assert_allclose(one_step_distance(t, z, rr, n, tv, D, sm, walk),
+        np.testing.assert_allclose(one_step_distances(t, z, rr, n, tv, D, sm, walk),
                                    innovation_loglik_numpy(t, z, rr, n, tv, D, sm, walk,
                                                            distance=True), rtol=1e-10)
 
@@ -146,8 +146,8 @@ def test_the_one_step_distance_of_a_follower_is_the_fix_to_fix_distance(compiled
     z = np.cumsum(rng.normal(0.0, 10.0, (40, 2)), axis=0)
     tp, zp, rp, n = _pack([(t, z, np.full(40, np.nan))], 50)
     args = (tp, zp, rp, n, np.array([[0.01]]), np.array([[1.0]]), np.array([[1e-8]]))
-    d = one_step_distance(*args) if compiled else innovation_loglik_numpy(*args,
-                                                                          distance=True)
+    d = one_step_distance(*args) if compiled else np.nanmean(
+        innovation_loglik_numpy(*args, distance=True), axis=-1)
     assert d[0, 0] == pytest.approx(np.mean(np.hypot(*np.diff(z, axis=0).T)), rel=1e-4)
 
 
@@ -164,15 +164,37 @@ def test_the_one_step_distance_of_a_constant_velocity_track(kernels):
     args = (tp, zp, rp, n, np.array([[1e6]]), np.array([[1e4]]), np.array([[1e-8]]))
     expected = 30.0 / 19
     assert one_step_distance(*args)[0, 0] == pytest.approx(expected, rel=1e-3)
-    assert innovation_loglik_numpy(*args, distance=True)[0, 0] == pytest.approx(
-        expected, rel=1e-3)
+    steps = innovation_loglik_numpy(*args, distance=True)[0, 0]
+    assert np.isnan(steps[0]) and np.isfinite(steps[1:]).all()
+    assert np.mean(steps[1:]) == pytest.approx(expected, rel=1e-3)
+
+
+def test_the_closer_predictor_beyond_chance_by_hand():
+    """The Diebold-Mariano test of :func:`significantly_closer`, by hand: differences
+    d_new − d_old of mean −1 and std 2 over 16 fixes give t = −1 / (2 / 4) = −2 (closer
+    beyond chance at z 1.645, not at 2.5); over 4 fixes t = −1 (not); a predictor that is
+    farther, or the same, never is; a fixed improvement (std 0) is."""
+    from herd_ros.ingest.motion_fit import significantly_closer
+    base = np.array([1.0, -1.0] * 8)                  # mean 0, sample std 16/15 ** 0.5
+    diff16 = -1.0 + base * 2.0 / np.sqrt(16.0 / 15.0)  # mean −1, sample std 2
+    old = np.full((1, 16), 10.0)
+    assert np.std(diff16, ddof=1) == pytest.approx(2.0)
+    assert significantly_closer(old + diff16, old).tolist() == [True]
+    assert significantly_closer(old + diff16, old, z=2.5).tolist() == [False]
+    diff4 = -1.0 + np.array([1.0, -1.0, 1.0, -1.0]) * 2.0 / np.sqrt(4.0 / 3.0)
+    assert significantly_closer(old[:, :4] + diff4, old[:, :4]).tolist() == [False]
+    assert significantly_closer(old - diff16, old).tolist() == [False]
+    assert significantly_closer(old, old).tolist() == [False]
+    assert significantly_closer(old - 0.5, old).tolist() == [True]
+    nan = np.full((1, 16), np.nan)                     # no pairs: never
+    assert significantly_closer(nan, old).tolist() == [False]
 
 
 def test_a_correlated_walk_is_kept_only_where_it_also_predicts_better(kernels):
     """The IOU is chosen where it is both the likelier model (AIC) and the closer one-step
-    predictor on the window: on known-truth correlated walks (τ_v 600 s) it is, and its
-    mean one-step distance is below the random walk's; collars whose velocity forgets
-    itself within the intervals (τ_v 0.5 s) are random walks."""
+    predictor on the window beyond chance: on known-truth correlated walks (τ_v 600 s) it
+    is, and its mean one-step distance is below the random walk's; collars whose velocity
+    forgets itself within the intervals (τ_v 0.5 s) are random walks."""
     from herd_ros.ingest.motion_fit import _pack, one_step_distance
     rng = np.random.default_rng(7)
     tracks = [simulate_iou(rng, 300, velocity_tau=600.0, diffusion=0.5, position_std=3.0)

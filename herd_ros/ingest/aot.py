@@ -85,7 +85,7 @@ EXPORTS = {
     'motion_distance': ('void', (('f8', 2, False), ('f8', 3, False), ('f8', 2, False),
                                  ('i8', 1, False), ('f8', 2, False), ('f8', 2, False),
                                  ('f8', 2, False), 'f8', 'f8', 'f8', 'f8',
-                                 ('f8', 2, True))),
+                                 ('f8', 3, True))),
     'motion_nelder_mead': ('void', (('f8', 2, False), ('f8', 3, False), ('f8', 2, False),
                                     ('i8', 1, False), ('f8', 2, False), ('f8', 2, False),
                                     ('f8', 2, False), ('f8', 2, False), 'f8', 'f8', 'f8',

@@ -173,9 +173,10 @@ class CollarBank:
         self.cand_r = np.zeros((n, MAX_CANDIDATES, L, 2, 2))
         # [n, Σx, Σy, Σx², Σxy, Σy²] of each collar's accepted states: its range
         self.range_moments = np.zeros((n, 6))
-        # [t, e, n, r_ee, r_en, r_nn, fixes left, 1 if left for a chain else 0] of the
-        # place each track left (t NaN: none)
-        self.left_place = np.full((n, 8), np.nan)
+        # two slots of [t, e, n, r_ee, r_en, r_nn, fixes left, 1 if left for a chain else
+        # 0]: the place each track left, and a later one beside it (t NaN: none;
+        # CollarFilter.left_place, .left_recent)
+        self.left_place = np.full((n, 16), np.nan)
         self.accel_std = np.full(n, float(self.params.accel_std))
         self.velocity_tau = np.full(n, float(self.params.velocity_tau))
         self.position_std = np.full(n, float(self.params.default_position_std))

@@ -121,8 +121,13 @@ off after a few minutes' silence passes the walk's gate, and the fixes that come
 are then beyond reach of the track. Such a place serves the return only; it does not
 make a fix within its envelope a reachable chain (its envelope, grown over the hours a
 duty-cycled collar may take to accept ``reacquire_fixes`` fixes, would admit bursts
-kilometres off). Measured on real GPS collars of cattle (doc/gps_ingest.md), where a
-logger's fixes leave for one to a few fixes and come back.
+kilometres off). A second such fix while the first place is still held keeps its own
+place beside it (``left_recent``; the first is not replaced: a scattered burst's second
+fix would then hide the place the burst began from), and a fix the track refuses is
+tried against the later place first. With one place, a logger that left for a fix again
+a few fixes after a move had its fixes back refused as a jump until it went stale.
+Measured on real GPS collars of cattle (doc/gps_ingest.md), where a logger's fixes leave
+for one to a few fixes and come back.
 
 Any fix the track accepts closes the open candidates (the burst is over). Isolated outliers
 in random directions never form a chain.
@@ -494,6 +499,8 @@ class CollarFilter:
             range, :func:`outside_range`).
         left_place: where the track was before it last moved to a reachable chain (the
             hypothesis that the chain was a burst; module docstring), or None.
+        left_recent: where it was before a later fix taken by the walk component alone,
+            while ``left_place`` is still held (module docstring), or None.
     """
 
     #: open candidate chains kept at once (the oldest is dropped)
@@ -519,6 +526,7 @@ class CollarFilter:
         self._last_position_fix = -np.inf     # stamp of the last fix with a position
         self.range_moments = np.zeros(6)      # [n, Σx, Σy, Σx², Σxy, Σy²] of accepted states
         self.left_place: LeftPlace | None = None
+        self.left_recent: LeftPlace | None = None
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -664,17 +672,18 @@ class CollarFilter:
             self.kf.predict(F=F, Q=Q)
             self.kf.update(z, R=r)
         else:
-            if d2 > self._gate and self.left_place is None:
-                # taken by the walk component alone: a move the track may have to undo
-                self.left_place = self._place_here(for_chain=False)
+            if d2 > self._gate:
+                # taken by the walk component alone: a move the track may have to undo;
+                # a place already held is kept, and this one beside it
+                if self.left_place is None:
+                    self.left_place = self._place_here(for_chain=False)
+                else:
+                    self.left_recent = self._place_here(for_chain=False)
             self._mixture_update(z, r, x_pred, P_pred, P_pred[:2, :2] + r, d2, *walk)
         self.t = stamp
         self.candidates.clear()
         self.counters['accepted'] += 1
-        if self.left_place is not None:
-            self.left_place.fixes_left -= 1
-            if self.left_place.fixes_left <= 0:
-                self.left_place = None       # the new place has held: no burst
+        self._held()
         return FixResult(True, 'accepted', '', d2)
 
     # -- internals ------------------------------------------------------------------------
@@ -713,7 +722,20 @@ class CollarFilter:
         """No accepted fix for ``reinit_after_gap``: the old state means nothing any more."""
         self.t = float('nan')
         self.candidates.clear()
-        self.left_place = None
+        self._forget_places()
+
+    def _forget_places(self):
+        self.left_place = self.left_recent = None
+
+    def _held(self):
+        """An accepted fix at the track's place: one fewer for each place it left (each
+        dropped at zero: the new place has held, no burst)."""
+        for name in ('left_place', 'left_recent'):
+            place = getattr(self, name)
+            if place is not None:
+                place.fixes_left -= 1
+                if place.fixes_left <= 0:
+                    setattr(self, name, None)
 
     def _reject(self, reason, detail, d2=float('nan')):
         self.counters[f'rejected_{reason}'] += 1
@@ -769,7 +791,7 @@ class CollarFilter:
             return FixResult(False, 'unconfirmed', f'track lost or not started: waiting for '
                              f'{need} consistent fixes ({len(chain.fixes)} so far)')
         first = not self._ever_initialised
-        self.left_place = None
+        self._forget_places()
         self._adopt(chain)
         if first:
             return FixResult(True, 'accepted', f'track started on {need} consistent fixes')
@@ -786,10 +808,11 @@ class CollarFilter:
             chain.jump = True       # a chain with a fix far outside the range is a jump
         need = int(self.params.reacquire_fixes if chain.jump else self.params.confirm_fixes)
         if len(chain.fixes) < need:
-            if self.left_place is not None and self._return_to_left(stamp, z, r):
+            if self._return_to_left(stamp, z, r):
                 return FixResult(True, 'reinitialised', 'back at the place the track left: '
                                  'the track returned to it', d2)
             return self._reject(reason, detail, d2)
+        self.left_recent = None
         self.left_place = None if chain.jump else self._place_here(for_chain=True)
         self._adopt(chain)
         self.counters['reinitialised'] += 1
@@ -803,11 +826,18 @@ class CollarFilter:
                          int(self.params.reacquire_fixes), for_chain)
 
     def _return_to_left(self, stamp, z, r) -> bool:
-        """A fix the track refuses that lies inside the gate of the place it left (that
-        place's position and covariance, velocity 0, predicted to the fix with the
-        collar's own motion model): the move was a burst, and the track goes back at once,
-        updated with this fix (module docstring: *the place the track left*)."""
-        p, left = self.params, self.left_place
+        """A fix the track refuses that lies inside the gate of a place it left (the later
+        of the two held first; module docstring: *the place the track left*): the track
+        goes back there at once (True)."""
+        places = [q for q in (self.left_place, self.left_recent) if q is not None]
+        places.sort(key=lambda q: -q.t)
+        return any(self._return_to(q, stamp, z, r) for q in places)
+
+    def _return_to(self, left: LeftPlace, stamp, z, r) -> bool:
+        """A refused fix inside the gate of the place ``left`` (its position and
+        covariance, velocity 0, predicted to the fix with the collar's own motion model):
+        the move was a burst, and the track goes back at once, updated with this fix."""
+        p = self.params
         x0 = np.array([left.z[0], left.z[1], 0.0, 0.0])
         P0 = np.zeros((4, 4))
         P0[:2, :2] = left.r
@@ -823,7 +853,7 @@ class CollarFilter:
         self.kf.update(z, R=r)
         self.t = stamp
         self.candidates.clear()
-        self.left_place = None
+        self._forget_places()
         self.counters['accepted'] += 1
         self.counters['reinitialised'] += 1
         return True

@@ -363,42 +363,58 @@ def _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t, cand_z, 
 
 @_jit
 def _held(left, i):
-    """An accepted fix at the track's place: one fewer for the place it left (dropped at
-    zero: the new place has held)."""
-    if math.isfinite(left[i, 0]):
-        left[i, 6] -= 1.0
-        if left[i, 6] <= 0.0:
-            left[i, 0] = np.nan
+    """An accepted fix at the track's place: one fewer for each place it left (each
+    dropped at zero: the new place has held)."""
+    for o in (0, 8):
+        if math.isfinite(left[i, o]):
+            left[i, o + 6] -= 1.0
+            if left[i, o + 6] <= 0.0:
+                left[i, o] = np.nan
 
 
 @_jit
-def _keep_left(left, i, t, x, P, reacquire, for_chain):
+def _keep_left(left, i, o, t, x, P, reacquire, for_chain):
     """Keep the place collar i's track is at (its state's time, position and position
-    covariance) as the place it leaves, for ``reacquire`` accepted fixes; ``for_chain``
-    1.0 when it leaves for a reachable chain, 0.0 for a fix its walk component took."""
-    left[i, 0] = t[i]
-    left[i, 1] = x[i, 0]
-    left[i, 2] = x[i, 1]
-    left[i, 3] = P[i, 0, 0]
-    left[i, 4] = P[i, 1, 0]
-    left[i, 5] = P[i, 1, 1]
-    left[i, 6] = reacquire
-    left[i, 7] = for_chain
+    covariance) as the place it leaves, in the slot at column ``o`` (0: CollarFilter
+    .left_place, 8: .left_recent), for ``reacquire`` accepted fixes; ``for_chain`` 1.0
+    when it leaves for a reachable chain, 0.0 for a fix its walk component took."""
+    left[i, o + 0] = t[i]
+    left[i, o + 1] = x[i, 0]
+    left[i, o + 2] = x[i, 1]
+    left[i, o + 3] = P[i, 0, 0]
+    left[i, o + 4] = P[i, 1, 0]
+    left[i, o + 5] = P[i, 1, 1]
+    left[i, o + 6] = reacquire
+    left[i, o + 7] = for_chain
 
 
 @_jit
 def _return_to_left(i, s, z0, z1, r, left, accel_std, velocity_tau, gate, t, x, P, xp, Pp,
                     W):
-    """CollarFilter._return_to_left: a refused fix inside the gate of the place the track
-    left goes back there at once (True; the state updated with the fix)."""
+    """CollarFilter._return_to_left: a refused fix inside the gate of a place the track
+    left (the later of the two held first) goes back there at once (True)."""
+    first = 8 if math.isfinite(left[i, 8]) and not left[i, 8] <= left[i, 0] else 0
+    for o in (first, 8 - first):
+        if math.isfinite(left[i, o]) and _return_to_left_at(
+                i, o, s, z0, z1, r, left, accel_std, velocity_tau, gate, t, x, P, xp, Pp,
+                W):
+            return True
+    return False
+
+
+@_jit
+def _return_to_left_at(i, o, s, z0, z1, r, left, accel_std, velocity_tau, gate, t, x, P,
+                       xp, Pp, W):
+    """CollarFilter._return_to: a refused fix inside the gate of the place in the slot at
+    column ``o`` goes back there at once (True; the state updated with the fix)."""
     x0 = np.zeros(4)
     P0 = np.zeros((4, 4))
-    x0[0] = left[i, 1]
-    x0[1] = left[i, 2]
-    P0[0, 0] = left[i, 3]
-    P0[1, 0] = P0[0, 1] = left[i, 4]
-    P0[1, 1] = left[i, 5]
-    _predict(x0, P0, s - left[i, 0], accel_std, velocity_tau, xp, Pp, W)
+    x0[0] = left[i, o + 1]
+    x0[1] = left[i, o + 2]
+    P0[0, 0] = left[i, o + 3]
+    P0[1, 0] = P0[0, 1] = left[i, o + 4]
+    P0[1, 1] = left[i, o + 5]
+    _predict(x0, P0, s - left[i, o], accel_std, velocity_tau, xp, Pp, W)
     d2, det = _mahalanobis2(xp, Pp, z0, z1, r)
     if not d2 <= gate:
         return False
@@ -407,6 +423,7 @@ def _return_to_left(i, s, z0, z1, r, left, accel_std, velocity_tau, gate, t, x, 
     P[i, :, :] = Pp
     t[i] = s
     left[i, 0] = np.nan
+    left[i, 8] = np.nan
     return True
 
 
@@ -424,9 +441,11 @@ def process_batch(collar, stamp, east, north, status, R,
     component (else the motion mixture of FilterParams.walk, prior weight ``walk_prob``,
     its fixes' variance raised by ``walk_r2``); ``rng`` (N, 6) the moments of each
     collar's accepted states (its range: a chain far outside it needs ``reacquire``);
-    ``left`` (N, 8) = [t, e, n, r_ee, r_en, r_nn, fixes left, for a chain] the place each
-    collar's track left when it last moved to a reachable chain (last column 1) or took a
-    fix by its walk component alone (0) (t NaN: none; CollarFilter.left_place)."""
+    ``left`` (N, 16): two slots of [t, e, n, r_ee, r_en, r_nn, fixes left, for a chain],
+    the place each collar's track left when it last moved to a reachable chain (last
+    column 1) or took a fix by its walk component alone (0) (t NaN: none;
+    CollarFilter.left_place), and from column 8 the place it left at a later fix its
+    walk component took while the first is held (CollarFilter.left_recent)."""
     xp = np.empty(4)
     Pp = np.empty((4, 4))
     xw = np.empty(4)
@@ -468,6 +487,7 @@ def process_batch(collar, stamp, east, north, status, R,
                 t[i] = np.nan               # the track is lost
                 n_cand[i] = 0
                 left[i, 0] = np.nan
+                left[i, 8] = np.nan
             chain = -1
             reason = -1                     # rejection reason if the chain is not adopted
             if not math.isfinite(t[i]):
@@ -483,6 +503,7 @@ def process_batch(collar, stamp, east, north, status, R,
                 else:
                     first = not ever[i]
                     left[i, 0] = np.nan
+                    left[i, 8] = np.nan
                     _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
                            cand_z, cand_r, accel_std[i], velocity_tau[i], v0, gate, W)
                     if first:
@@ -560,9 +581,11 @@ def process_batch(collar, stamp, east, north, status, R,
                                         cand_len, cand_t, cand_z, cand_r, max_speed,
                                         cruise_speed, sprint_s, gate_sigma)
                     if chain < 0 and walk_accel > 0.0:   # accepted: mixture update
-                        if d2 > gate and not math.isfinite(left[i, 0]):
+                        if d2 > gate:
                             # taken by the walk component alone: a move it may undo
-                            _keep_left(left, i, t, x, P, reacquire, 0.0)
+                            # (a place already held is kept, and this one beside it)
+                            _keep_left(left, i, 0 if not math.isfinite(left[i, 0]) else 8,
+                                       t, x, P, reacquire, 0.0)
                         _update(xp, Pp, z0, z1, r, W)
                         _update(xw, Pw, z0, z1, rw, W)
                         lw = (math.log(walk_prob) - 0.5 * math.log(detw) - 0.5 * d2w) - (
@@ -587,7 +610,7 @@ def process_batch(collar, stamp, east, north, status, R,
                     if reason == RANGE:
                         cand_jump[i, chain] = True  # a fix far outside the range: a jump
                     need = reacquire if cand_jump[i, chain] else confirm
-                    if cand_len[i, chain] < need and math.isfinite(left[i, 0]) and \
+                    if cand_len[i, chain] < need and \
                             _return_to_left(i, s, z0, z1, r, left, accel_std[i],
                                             velocity_tau[i], gate, t, x, P, xp, Pp, W):
                         n_cand[i] = 0             # back at the place it left: a burst
@@ -605,8 +628,10 @@ def process_batch(collar, stamp, east, north, status, R,
                     else:
                         if cand_jump[i, chain]:
                             left[i, 0] = np.nan
+                            left[i, 8] = np.nan
                         else:                 # keep the place the track leaves
-                            _keep_left(left, i, t, x, P, reacquire, 1.0)
+                            left[i, 8] = np.nan
+                            _keep_left(left, i, 0, t, x, P, reacquire, 1.0)
                         _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
                                cand_z, cand_r, accel_std[i], velocity_tau[i], v0, gate, W)
                         counters[i, C_REINIT] += 1
@@ -760,10 +785,11 @@ def _walk_steps(t, i, m, walk_accel, walk_tau, out):
 
 @_jit
 def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber,
-                distance=False):
+                distance, steps):
     """ℓ of collar i's first ``m`` fixes at one parameter point (see motion_loglik), or
     with ``distance`` the mean distance (m) from each fix to the own model's prediction
-    of it (see motion_distance);
+    of it, each written to ``steps[k]`` (see motion_distance; ``steps`` may be empty
+    otherwise);
     ``walk`` the walk component's steps (:func:`_walk_steps`), or an empty array for none.
     Per step one log per component (of the product of the axes' variances) and, for the
     mixture, one exp and one log1p (ℓ_k = max + log1p(e^{−|Δ|}), the weights from the same
@@ -825,7 +851,9 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber,
                 comp[j, 3, ax] = bp - kp * bp
                 comp[j, 4, ax] = cp - kv * bp
             if distance and j == 0:
-                dsum += math.sqrt(y2)
+                dk = math.sqrt(y2)
+                dsum += dk
+                steps[k] = dk
             if not use_walk and nis > huber:
                 nis = 2.0 * math.sqrt(huber * nis) - huber
             lc[j] = (lg0 if j == 0 else lw0) - log_two_pi - 0.5 * math.log(det) - 0.5 * nis
@@ -888,23 +916,23 @@ def motion_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk_accel,
         if G % 2:
             out[i, G - 1] = _loglik_one(t, z, r, i, n[i], velocity_tau[i, G - 1],
                                         diffusion[i, G - 1], position_var[i, G - 1], walk,
-                                        walk_prob, walk_r2, huber)
+                                        walk_prob, walk_r2, huber, False, np.empty(0))
 
 
 @_jit
 def motion_distance(t, z, r, n, velocity_tau, diffusion, position_var, walk_accel,
                     walk_tau, walk_prob, walk_r2, out):
-    """:func:`herd_ros.ingest.motion_fit.one_step_distance` compiled: ``out[i, g]`` is
-    the mean distance (m) from each of collar i's fixes after its first to where the
-    filter at parameter point g predicted it (its own model's prediction, as the track
-    says before the fix), the filter run as in :func:`motion_loglik`."""
+    """:func:`herd_ros.ingest.motion_fit.one_step_distances` compiled: ``out[i, g, k]``
+    is the distance (m) from collar i's fix k to where the filter at parameter point g
+    predicted it (its own model's prediction, as the track says before the fix), the
+    filter run as in :func:`motion_loglik`; NaN at its first fix and beyond its last."""
     walk = np.empty((t.shape[1] if walk_accel > 0.0 else 0, 5))
+    out[:, :, :] = np.nan
     for i in range(t.shape[0]):
         _walk_steps(t, i, n[i], walk_accel, walk_tau, walk)
         for g in range(velocity_tau.shape[1]):
-            out[i, g] = _loglik_one(t, z, r, i, n[i], velocity_tau[i, g], diffusion[i, g],
-                                    position_var[i, g], walk, walk_prob, walk_r2, 0.0,
-                                    True)
+            _loglik_one(t, z, r, i, n[i], velocity_tau[i, g], diffusion[i, g],
+                        position_var[i, g], walk, walk_prob, walk_r2, 0.0, True, out[i, g])
 
 
 @_jit
@@ -914,7 +942,8 @@ def _nm_value(t, z, r, i, m, x, lo, hi, walk, walk_prob, walk_r2, huber):
     diffusion is D = σ_a² τ_v²)."""
     _nm_clip(x, lo, hi, i)
     tv, D, sm2 = _nm_params(x)
-    return -_loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber)
+    return -_loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber, False,
+                        np.empty(0))
 
 
 @_jit

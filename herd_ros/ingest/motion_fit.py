@@ -32,13 +32,16 @@ kernels are absent, a grid with coordinate refinement, vectorised over collars. 
 random walk (τ_v a tenth of the collar's shortest typical interval: its velocity forgets
 itself between fixes) and the IOU (τ_v free) are fitted separately. The IOU is chosen
 only where it is both the likelier model by AIC (Akaike 1974: it needs one parameter
-more) and the closer one-step predictor on the same fixes (:func:`one_step_distance`,
-the mean distance from each fix to where the filter, run causally, predicted it: a
-prequential check, Dawid 1984, J. R. Stat. Soc. A 147:278). The two disagree on real
-GPS collars, whose error is correlated over minutes: a persistent velocity describes
-the wandering fixes well, and carried forward it misses the next one (measured on 39
-cattle tracks from GPS loggers fixing every 30-60 s, not in the repository:
-doc/gps_ingest.md).
+more) and the closer one-step predictor on the same fixes beyond chance
+(:func:`one_step_distances`, the distance from each fix to where the filter, run
+causally, predicted it: a prequential check, Dawid 1984, J. R. Stat. Soc. A 147:278;
+:func:`significantly_closer`, the Diebold-Mariano test on those distances, paired fix by
+fix). The two disagree on real GPS collars, whose error is correlated over minutes: a
+persistent velocity describes the wandering fixes well, and carried forward it misses
+the next one (measured on 39 cattle tracks from GPS loggers fixing every 30-60 s, not in
+the repository: doc/gps_ingest.md). Closer by a few per cent on a window, the IOU still
+carried a velocity the walk component had taken from one far fix into the next
+minutes, and lost the tail there; it must now be closer beyond the window's noise.
 
 **Prior**: a collar with fewer than ``min_fixes`` usable fixes takes the pooled fit of all
 collars (their likelihoods summed over the same grid); if none has enough, the caller's
@@ -147,15 +150,44 @@ def innovation_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk=No
     return _filter_pass(t, z, r, n, velocity_tau, diffusion, position_var, walk, False)
 
 
-def one_step_distance(t, z, r, n, velocity_tau, diffusion, position_var, walk=None):
-    """Mean one-step prediction distance (m) of N collars at G parameter points each: the
+def one_step_distances(t, z, r, n, velocity_tau, diffusion, position_var, walk=None):
+    """One-step prediction distances (m) of N collars at G parameter points each: the
     filter of :func:`innovation_loglik` run over each collar's fixes, and at each fix
     after the first the distance from the fix to where its own model predicted it (what
     the track says just before the fix). The compiled loop
     (:func:`herd_ros.ingest.collar_kernels.motion_distance`) where the collar kernels
     are, else :func:`innovation_loglik_numpy` (``distance=True``). Arguments as
-    :func:`innovation_loglik_numpy`; returns (N, G)."""
+    :func:`innovation_loglik_numpy`; returns (N, G, K), NaN at each collar's first fix
+    and beyond its ``n``."""
     return _filter_pass(t, z, r, n, velocity_tau, diffusion, position_var, walk, True)
+
+
+def one_step_distance(t, z, r, n, velocity_tau, diffusion, position_var, walk=None):
+    """Mean of :func:`one_step_distances` over each collar's fixes after its first
+    (N, G)."""
+    d = one_step_distances(t, z, r, n, velocity_tau, diffusion, position_var, walk)
+    return np.nansum(d, axis=-1) / np.maximum(np.asarray(n) - 1, 1)[:, None]
+
+
+#: one-sided level of :func:`significantly_closer` (z of a 5 % test)
+CLOSER_Z = 1.645
+
+
+def significantly_closer(d_new, d_old, z: float = CLOSER_Z) -> np.ndarray:
+    """Per collar, whether predictor "new" is the closer one-step predictor beyond chance:
+    the Diebold-Mariano test of equal predictive accuracy (Diebold & Mariano 1995, J. Bus.
+    Econ. Stat. 13:253) on the paired distances ``d_new``, ``d_old`` (N, K; NaN where
+    none), one-sided: the mean of ``d_new − d_old`` below −``z`` of its standard error
+    (one-step forecasts: no autocorrelation terms)."""
+    diff = np.asarray(d_new, float) - np.asarray(d_old, float)
+    ok = np.isfinite(diff)
+    m = ok.sum(axis=1)
+    d = np.where(ok, diff, 0.0)
+    mean = d.sum(axis=1) / np.maximum(m, 1)
+    var = np.where(ok, (d - mean[:, None]) ** 2, 0.0).sum(axis=1) / np.maximum(m - 1, 1)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        stat = mean / np.sqrt(var / np.maximum(m, 1))
+    return (m >= 2) & (mean < 0) & ((var == 0) | (stat < -float(z)))
 
 
 def _filter_pass(t, z, r, n, velocity_tau, diffusion, position_var, walk, distance):
@@ -170,7 +202,7 @@ def _filter_pass(t, z, r, n, velocity_tau, diffusion, position_var, walk, distan
     def arr(x, s=shape):
         return np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=float), s))
 
-    out = np.empty(shape)
+    out = np.empty(shape + (np.shape(t)[1],) if distance else shape)
     wa, wt, pw, wr2 = _walk(walk)
     args = (arr(t, np.shape(t)), arr(z, np.shape(z)), arr(r, np.shape(r)),
             np.ascontiguousarray(n, dtype=np.int64), arr(velocity_tau), arr(diffusion),
@@ -218,8 +250,9 @@ def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
             step's density ``(1 − π) N(y; S_g) + π N(y; S_w)``, the posterior collapsed
             per axis), so the fit describes the animal between its walks.
 
-        distance: return instead the mean distance (m) from each fix to the own model's
-            prediction of it (:func:`one_step_distance`).
+        distance: return instead the distance (m) from each fix to the own model's
+            prediction of it (:func:`one_step_distances`): (N, G, K), NaN at each
+            collar's first fix and beyond its ``n``.
 
     Returns:
         (N, G) log-likelihoods (the first fix of a collar initialises, it is not scored).
@@ -237,7 +270,7 @@ def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
     b = np.zeros(shape)
     c = np.broadcast_to((D / (2.0 * tv))[..., None], shape).copy()
     ll = np.zeros(tv.shape)
-    dsum = np.zeros(tv.shape)
+    steps = np.full(tv.shape + (K,), np.nan)
     comps = [(tv, accel, 0.0, 0.0)]
     if walk is not None:
         wa, wt, pw, wr2 = _walk(walk)
@@ -260,7 +293,7 @@ def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
             S = ap + rk + extra
             y = zk - (p + f * v)
             if distance and j == 0:             # the own model: what the track says
-                dsum += np.where(live, np.sqrt((y * y).sum(axis=-1)), 0.0)
+                steps[..., k] = np.where(live, np.sqrt((y * y).sum(axis=-1)), np.nan)
             nis = y * y / S
             if walk is None:
                 tot = nis.sum(axis=-1)
@@ -294,7 +327,7 @@ def innovation_loglik_numpy(t, z, r, n, velocity_tau, diffusion, position_var,
         b = np.where(l3, bn, b)
         c = np.where(l3, cn, c)
     if distance:
-        return dsum / np.maximum(np.asarray(n) - 1, 1)[:, None]
+        return steps
     return ll
 
 
@@ -366,8 +399,9 @@ def fit_motion(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
     ``r`` −HDOP², :func:`herd_ros.ingest.motion_refit.fix_variance`) is fitted twice: those
     fixes' std σ_m × HDOP (σ_m the UERE of ctmm's error model, Fleming et al. 2020,
     *Methods Ecol. Evol.* 12) and one σ_m for all; the likelier is kept (the same number of
-    parameters) if it is also the closer one-step predictor on the window (the check the
-    IOU passes, :func:`one_step_distance`), and :attr:`MotionFit.hdop` says which."""
+    parameters) if it is also the closer one-step predictor on the window (by the mean,
+    :func:`one_step_distance`; the IOU, a parameter more, must be closer beyond chance),
+    and :attr:`MotionFit.hdop` says which."""
     kw = dict(min_fixes=min_fixes, max_fixes=max_fixes,
               position_std_floor=position_std_floor, default=default, walk=walk)
     tracks = list(tracks)
@@ -479,14 +513,15 @@ def fit_motion_once(tracks, *, min_fixes: int = 20, max_fixes: int = 200,
     k_extra = sm_free.astype(float)
     aic_rw = 2.0 * (1 + k_extra) - 2.0 * rw[3]
     aic_iou = 2.0 * (2 + k_extra) - 2.0 * iou[3]
-    # where AIC prefers the IOU, it must also be the closer one-step predictor
+    # where AIC prefers the IOU, it must also be the closer one-step predictor, beyond
+    # chance (significantly_closer)
     better = aic_iou < aic_rw
     if better.any():
         b = np.flatnonzero(better)
-        dist = one_step_distance(t[b], z[b], r[b], n[b],
-                                 *(10.0 ** np.stack([rw[d][b], iou[d][b]], axis=1)
-                                   for d in range(3)), walk)
-        better[b] = dist[:, 1] < dist[:, 0]
+        dist = one_step_distances(t[b], z[b], r[b], n[b],
+                                  *(10.0 ** np.stack([rw[d][b], iou[d][b]], axis=1)
+                                    for d in range(3)), walk)
+        better[b] = significantly_closer(dist[:, 1], dist[:, 0])
     for j, i in enumerate(enough):
         pick, name, aic = (iou, 'iou', aic_iou[j]) if better[j] else (rw, 'rw', aic_rw[j])
         has_unknown = bool(unknown[j, :n[j]].any())
