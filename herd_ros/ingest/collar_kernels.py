@@ -788,8 +788,8 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber,
                 distance, steps):
     """ℓ of collar i's first ``m`` fixes at one parameter point (see motion_loglik), or
     with ``distance`` the mean distance (m) from each fix to the own model's prediction
-    of it, each written to ``steps[k]`` (see motion_distance; ``steps`` may be empty
-    otherwise);
+    of it, each written to ``steps[k]`` (see motion_distance; otherwise ``steps`` is
+    not touched: an empty view, no allocation per evaluation);
     ``walk`` the walk component's steps (:func:`_walk_steps`), or an empty array for none.
     Per step one log per component (of the product of the axes' variances) and, for the
     mixture, one exp and one log1p (ℓ_k = max + log1p(e^{−|Δ|}), the weights from the same
@@ -916,7 +916,7 @@ def motion_loglik(t, z, r, n, velocity_tau, diffusion, position_var, walk_accel,
         if G % 2:
             out[i, G - 1] = _loglik_one(t, z, r, i, n[i], velocity_tau[i, G - 1],
                                         diffusion[i, G - 1], position_var[i, G - 1], walk,
-                                        walk_prob, walk_r2, huber, False, np.empty(0))
+                                        walk_prob, walk_r2, huber, False, out[i, :0])
 
 
 @_jit
@@ -943,7 +943,7 @@ def _nm_value(t, z, r, i, m, x, lo, hi, walk, walk_prob, walk_r2, huber):
     _nm_clip(x, lo, hi, i)
     tv, D, sm2 = _nm_params(x)
     return -_loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber, False,
-                        np.empty(0))
+                        x[:0])
 
 
 @_jit
