@@ -373,6 +373,13 @@ def _held(left, i):
 
 
 @_jit
+def _forget_left(left, i):
+    """CollarFilter._forget_places: neither place the track left is held any more."""
+    left[i, 0] = np.nan
+    left[i, 8] = np.nan
+
+
+@_jit
 def _keep_left(left, i, o, t, x, P, reacquire, for_chain):
     """Keep the place collar i's track is at (its state's time, position and position
     covariance) as the place it leaves, in the slot at column ``o`` (0: CollarFilter
@@ -422,8 +429,7 @@ def _return_to_left_at(i, o, s, z0, z1, r, left, accel_std, velocity_tau, gate, 
     x[i, :] = xp
     P[i, :, :] = Pp
     t[i] = s
-    left[i, 0] = np.nan
-    left[i, 8] = np.nan
+    _forget_left(left, i)
     return True
 
 
@@ -486,8 +492,7 @@ def process_batch(collar, stamp, east, north, status, R,
             if math.isfinite(t[i]) and silence > reinit_after_gap:
                 t[i] = np.nan               # the track is lost
                 n_cand[i] = 0
-                left[i, 0] = np.nan
-                left[i, 8] = np.nan
+                _forget_left(left, i)
             chain = -1
             reason = -1                     # rejection reason if the chain is not adopted
             if not math.isfinite(t[i]):
@@ -502,8 +507,7 @@ def process_batch(collar, stamp, east, north, status, R,
                     counters[i, C_UNCONF] += 1
                 else:
                     first = not ever[i]
-                    left[i, 0] = np.nan
-                    left[i, 8] = np.nan
+                    _forget_left(left, i)
                     _adopt(i, chain, t, x, P, ever, counters, n_cand, cand_len, cand_t,
                            cand_z, cand_r, accel_std[i], velocity_tau[i], v0, gate, W)
                     if first:
@@ -627,8 +631,7 @@ def process_batch(collar, stamp, east, north, status, R,
                             counters[i, C_GATE] += 1
                     else:
                         if cand_jump[i, chain]:
-                            left[i, 0] = np.nan
-                            left[i, 8] = np.nan
+                            _forget_left(left, i)
                         else:                 # keep the place the track leaves
                             left[i, 8] = np.nan
                             _keep_left(left, i, 0, t, x, P, reacquire, 1.0)
@@ -786,10 +789,10 @@ def _walk_steps(t, i, m, walk_accel, walk_tau, out):
 @_jit
 def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber,
                 distance, steps):
-    """ℓ of collar i's first ``m`` fixes at one parameter point (see motion_loglik), or
-    with ``distance`` the mean distance (m) from each fix to the own model's prediction
-    of it, each written to ``steps[k]`` (see motion_distance; otherwise ``steps`` is
-    not touched: an empty view, no allocation per evaluation);
+    """ℓ of collar i's first ``m`` fixes at one parameter point (see motion_loglik); with
+    ``distance`` also the distance (m) from each fix k to the own model's prediction of
+    it, written to ``steps[k]`` (see motion_distance; otherwise ``steps`` is not touched:
+    an empty view, no allocation per evaluation);
     ``walk`` the walk component's steps (:func:`_walk_steps`), or an empty array for none.
     Per step one log per component (of the product of the axes' variances) and, for the
     mixture, one exp and one log1p (ℓ_k = max + log1p(e^{−|Δ|}), the weights from the same
@@ -814,7 +817,6 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber,
         b[ax] = 0.0
         c[ax] = D / (2.0 * tv)
     ll = 0.0
-    dsum = 0.0
     ncomp = 2 if use_walk else 1
     for k in range(1, m):
         dt = t[i, k] - t[i, k - 1]
@@ -851,9 +853,7 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber,
                 comp[j, 3, ax] = bp - kp * bp
                 comp[j, 4, ax] = cp - kv * bp
             if distance and j == 0:
-                dk = math.sqrt(y2)
-                dsum += dk
-                steps[k] = dk
+                steps[k] = math.sqrt(y2)
             if not use_walk and nis > huber:
                 nis = 2.0 * math.sqrt(huber * nis) - huber
             lc[j] = (lg0 if j == 0 else lw0) - log_two_pi - 0.5 * math.log(det) - 0.5 * nis
@@ -891,8 +891,6 @@ def _loglik_one(t, z, r, i, m, tv, D, sm2, walk, walk_prob, walk_r2, huber,
                      + w1 * (comp[1, 4, ax] + (v1 - vn) ** 2))
             p[ax] = pn
             v[ax] = vn
-    if distance:
-        return dsum / max(m - 1, 1)
     return ll
 
 
