@@ -6,7 +6,9 @@ parameters file (the one `herd-ros demo` composes in a single process). A sixth 
 `record`, writes /herd/poses, /fleet/poses and /herd/model/params to a bag, which the test
 reads back with rosbags. Expectations are independent of the code under test: the robots'
 herd statistics are compared with the cows' as they come out of ingest (same clock, same
-statistics), parameters must settle, robots must move and stay inside the fence.
+statistics, each robot and its animal from the moment the robot's law took over, which the
+controller's /diagnostics give, as the demo scores them), parameters must settle, robots
+must move and stay inside the fence.
 """
 import signal
 import subprocess
@@ -56,13 +58,11 @@ def test_robots_learn_from_replayed_cows_and_move_like_them(tmp_path, ros_env, c
     params['replay']['ros__parameters']['exit_when_done'] = True
     params['replay']['ros__parameters']['wait_for_subscribers'] = 1
     params['gps_ingest']['ros__parameters']['fix_queue_depth'] = 1000
-    # the robots wait standing at their animals' first poses (not escorting them): the run
-    # below is the law's from its first motion (the escort is tested in test_fleet_nodes
-    # and by the demo, which scores each robot from its law's start)
-    params['controller']['ros__parameters']['wait_mode'] = 'hold'
+    # the controller's default wait: each robot escorts its animal until its law takes
+    # over, so the law starts where the animal is (the demo's way)
     params['record'] = {'ros__parameters': {
         'bag': str(tmp_path / 'graph_bag'),
-        'topics': ['/herd/poses', '/fleet/poses', '/herd/model/params']}}
+        'topics': ['/herd/poses', '/fleet/poses', '/herd/model/params', '/diagnostics']}}
     params_file = tmp_path / 'graph.yaml'
     params_file.write_text(dump_yaml(params))
     args = ['--ros-args', '--params-file', str(params_file)]
@@ -89,7 +89,14 @@ def test_robots_learn_from_replayed_cows_and_move_like_them(tmp_path, ros_env, c
             f.close()
 
     herd_t, herd_p, fleet_t, fleet_p, dampings = [], [], [], [], []
+    law_since = {}
     for topic, _, _, msg in read_messages(tmp_path / 'graph_bag'):
+        if topic == '/diagnostics':
+            for st in msg.status:
+                if st.name.startswith('controller: '):
+                    law_since.update({st.hardware_id: float(kv.value) for kv in st.values
+                                      if kv.key == 'law_since'})
+            continue
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec \
             if hasattr(msg, 'header') else None
         if topic == '/herd/poses':
@@ -114,23 +121,31 @@ def test_robots_learn_from_replayed_cows_and_move_like_them(tmp_path, ros_env, c
     assert (half.max(0) - half.min(0) < 0.25).all(), half.max(0) - half.min(0)
     assert (np.abs(d[-1]) < 1).all()
 
-    # robots at the herd ticks (last fleet pose at or before each tick), once they move
+    # robots at the herd ticks (last fleet pose at or before each tick)
     order = np.argsort(fleet_t)
     fleet_t, fleet_p = fleet_t[order], fleet_p[order]
     idx = np.searchsorted(fleet_t, herd_t, side='right') - 1
     ok = idx >= 0
-    robots = fleet_p[idx[ok]]
+    times, robots, cows_p = herd_t[ok], fleet_p[idx[ok]], herd_p[ok]
     moved = np.linalg.norm(robots - robots[0], axis=-1).max(0)
     assert (moved > 5.0).all(), f'robots hardly moved: {moved}'
     inside = PolyPath(np.vstack([fence, fence[:1]])).contains_points(fleet_p.reshape(-1, 2))
     assert inside.all(), 'a robot left the fence'
-    start = np.argmax(np.linalg.norm(robots - robots[0], axis=-1).max(1) > 0.5)
-    robot_run = HerdTrajectory(herd_t[ok][start:], ROBOTS, robots[start:])
-    cow_run = HerdTrajectory(herd_t, AGENTS, herd_p)
-    cows, bots = herd_statistics(cow_run), herd_statistics(robot_run)
+    # each robot, and its animal, from the moment its law took over (the controller's
+    # /diagnostics), as the demo scores them: before it the robot waited
+    assert sorted(law_since) == ROBOTS and np.isfinite(list(law_since.values())).all(), \
+        law_since
+    since = np.array([law_since[r] for r in ROBOTS])
+    assert (since < times[-1] - 0.5 * 3600).all(), since - times[0]   # the law ran ≥ ½ h
+    before = times[:, None] < since[None, :]
+    robots, cows_p = robots.copy(), cows_p.copy()
+    robots[before], cows_p[before] = np.nan, np.nan
+    cows = herd_statistics(HerdTrajectory(times, AGENTS, cows_p))
+    bots = herd_statistics(HerdTrajectory(times, ROBOTS, robots))
     table = {key: (np.mean([cows[a][key] for a in AGENTS]),
                    np.mean([bots[b][key] for b in ROBOTS])) for key in STATISTICS}
     print('herd statistics (cows, robots):', {k: (round(c, 3), round(r, 3))
-                                               for k, (c, r) in table.items()})
+                                               for k, (c, r) in table.items()},
+          'law since (s after the first tick):', np.round(since - times[0]))
     for key, (c, r) in table.items():
         assert abs(r - c) <= 0.30 * c, (key, table)

@@ -215,15 +215,21 @@ class Controller(Node):
     def publish_diagnostics(self, active, world):
         """Per robot its counters and speed, and the mode's status, on /diagnostics."""
         statuses = []
+        # herd_model: the time (node clock, s) each robot's law took over from its wait
+        since = getattr(self.policy, 'law_since', None)
+        if since is not None and len(since) != len(self.all_robots):
+            since = None
         for k, robot in enumerate(self.all_robots):
             if not self.owned[k]:
                 continue
             level = OK if active[k] else WARN
+            law = {} if since is None else {'law_since': float(since[k])}
             statuses.append(diagnostic_status(
                 f'controller: {robot}', level,
                 'ok' if active[k] else 'odometry stale: commanding zero',
                 {'speed': float(np.hypot(*world[k])),
-                 **{key: int(c[k]) for key, c in self.counts.items()}}, hardware_id=robot))
+                 **{key: int(c[k]) for key, c in self.counts.items()}, **law},
+                hardware_id=robot))
         statuses.append(diagnostic_status(
             'controller', OK if getattr(self.policy, 'follower', True) is not None else WARN,
             f'mode {self.mode}: {getattr(self.policy, "status", "")}',
