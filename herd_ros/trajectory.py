@@ -212,7 +212,7 @@ def write_trajectory_csv(path, runs: list[HerdTrajectory] | HerdTrajectory,
     table = pd.concat(frames)
     text_cols = [c for c in ('run', 'agent') if c in table.columns]
     names = {str(a) for r in runs for a in r.agents} | {str(r.run) for r in runs}
-    plain = not any(ch in name for name in names for ch in ',"\r\n')
+    plain = not any(ch in name for name in names for ch in ',"\r\n\0')
     fixed = re.fullmatch(r'%\.(\d+)f', float_format)
     if plain and fixed:     # column-wise in numpy (csv_bytes): same text, ~2x faster
         decimals = int(fixed.group(1))

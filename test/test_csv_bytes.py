@@ -44,3 +44,13 @@ def test_trajectory_csv_is_the_python_formatted_table(tmp_path):
                 if np.isfinite(r.positions[k, i]).all():
                     want.append('%s,%.6f,%s,%.6f,%.6f' % (r.run, t, a, *r.positions[k, i]))
     assert path.read_text().splitlines() == want
+
+
+def test_a_nul_in_a_name_is_refused_by_the_fast_path_and_written_by_pandas(tmp_path):
+    with pytest.raises(ValueError, match='NUL'):
+        text_field(['cow\0one'])
+    run = HerdTrajectory(np.array([0.0, 1.0]), ['cow\0one', 'cow_2'],
+                         np.array([[[1.0, 2.0], [3.0, 4.0]], [[5.0, 6.0], [7.0, 8.0]]]))
+    lines = write_trajectory_csv(tmp_path / 't.csv', run).read_text().splitlines()
+    assert lines[1] == '0.000000,cow\0one,1.000000,2.000000'
+    assert len(lines) == 5

@@ -53,7 +53,8 @@ AVAILABLE = KERNELS is not None
 def measurement_covariances(cov_type, cov9, default_position_std,
                             position_std_floor) -> np.ndarray:
     """``R`` (M, 2, 2) of M fixes from their NavSatFix covariance type (M,) and
-    ``position_covariance`` (M, 9): the rules of
+    ``position_covariance`` (M, 9; not read, and may be None, when no type is known): the
+    rules of
     :func:`~herd_ros.ingest.collar_filter.measurement_covariance`, vectorised
     (``default_position_std``, ``position_std_floor``: one std, or (M,), each fix's
     collar's).
@@ -63,7 +64,10 @@ def measurement_covariances(cov_type, cov9, default_position_std,
     ``R = max(λ₂, f²) I + (max(λ₁, f²) − max(λ₂, f²)) Π₁``; ``R = A`` when λ₁ ≥ f².
     """
     cov_type = np.ascontiguousarray(cov_type, dtype=np.int64).reshape(-1)
-    c = np.ascontiguousarray(cov9, dtype=float).reshape(len(cov_type), 9)
+    if cov_type.any():
+        c = np.ascontiguousarray(cov9, dtype=float).reshape(len(cov_type), 9)
+    else:           # no fix has a covariance: the kernel reads none (a type 0 is unknown)
+        c = _NO_COVARIANCE
     r = np.empty((len(cov_type), 2, 2))
     d2 = _per(np.asarray(default_position_std, dtype=float) ** 2, len(cov_type))
     f2 = _per(np.asarray(position_std_floor, dtype=float) ** 2, len(cov_type))
@@ -84,6 +88,10 @@ def predict_states(x, P, tau, accel_std, velocity_tau=0.0):
     KERNELS.predict_many(x, P, tau, _per(accel_std, len(x)), _per(velocity_tau, len(x)),
                          xo, Po)
     return xo, Po
+
+
+#: the covariance rows passed for a batch in which no fix has one (never read)
+_NO_COVARIANCE = np.full((1, 9), np.nan)
 
 
 def _per(value, n: int) -> np.ndarray:

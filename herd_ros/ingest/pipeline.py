@@ -425,8 +425,11 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
         order = np.lexsort((np.arange(m), refit_rounds(t[rows], bounds, refit)))
         var = fix_variance(cov_type, cov[:, 0], cov[:, 4], params.position_std_floor, hdop)
         r = rows[order]
+        ct = cov_type[r]
+        # no fix with a covariance: its rows are never read, so not copied (a view of NaN)
+        cv = cov[r] if ct.any() else np.broadcast_to(np.nan, (len(r), 9))
         out, motion = process_with_refits(bank, refitter, codes[r], t[r], e[r], n[r],
-                                          status[r], cov_type[r], cov[r], var[r])
+                                          status[r], ct, cv, var[r])
         # the results stay in round order: each collar's rows are read through `at`
         at = np.empty(m, np.int64)
         at[order] = np.arange(m)
@@ -436,7 +439,8 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
         motion = np.empty((m, 2))
         motion[:, 0] = params.accel_std
         motion[:, 1] = params.velocity_tau
-        R = bank.measurement_covariances(cov_type[rows], cov[rows], codes[rows])
+        ct = cov_type[rows]
+        R = bank.measurement_covariances(ct, cov[rows] if ct.any() else None, codes[rows])
         bar = None
         if progress and m > chunk:
             from tqdm import tqdm
