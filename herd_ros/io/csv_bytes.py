@@ -76,7 +76,8 @@ def fixed_point(values, decimals: int = 6) -> tuple[np.ndarray, np.ndarray]:
 def join_rows(fields, sep: bytes = b',', end: bytes = b'\n') -> bytes:
     """The CSV text of rows whose fields are ``(bytes, mask)`` columns (all of n rows,
     as :func:`text_field` and :func:`fixed_point` make them: zero bytes outside the mask,
-    none inside): fields joined by ``sep``, each row ended by ``end``. The rows' byte
+    none inside; the masks are not read, and may be None): fields joined by ``sep``, each
+    row ended by ``end``. The rows' byte
     matrix is written out and its zero bytes dropped by ``bytes.replace`` — a boolean
     mask of the whole matrix and its gather cost 2-5 times as much, most of it faulting in
     the mask's fresh pages."""
