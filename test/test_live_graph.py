@@ -138,8 +138,7 @@ def test_robots_learn_from_replayed_cows_and_move_like_them(tmp_path, ros_env, c
     since = np.array([law_since[r] for r in ROBOTS])
     assert (since < times[-1] - 0.5 * 3600).all(), since - times[0]   # the law ran ≥ ½ h
     before = times[:, None] < since[None, :]
-    robots, cows_p = robots.copy(), cows_p.copy()
-    robots[before], cows_p[before] = np.nan, np.nan
+    robots[before], cows_p[before] = np.nan, np.nan     # both copies (fancy indexing)
     cows = herd_statistics(HerdTrajectory(times, AGENTS, cows_p))
     bots = herd_statistics(HerdTrajectory(times, ROBOTS, robots))
     table = {key: (np.mean([cows[a][key] for a in AGENTS]),

@@ -53,8 +53,7 @@ AVAILABLE = KERNELS is not None
 def measurement_covariances(cov_type, cov9, default_position_std,
                             position_std_floor) -> np.ndarray:
     """``R`` (M, 2, 2) of M fixes from their NavSatFix covariance type (M,) and
-    ``position_covariance`` (M, 9; not read, and may be None, when no type is known): the
-    rules of
+    ``position_covariance`` (M, 9; not read when no type is known): the rules of
     :func:`~herd_ros.ingest.collar_filter.measurement_covariance`, vectorised
     (``default_position_std``, ``position_std_floor``: one std, or (M,), each fix's
     collar's).

@@ -417,6 +417,11 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
     bounds = np.searchsorted(who, np.arange(len(agents) + 1))   # rows sorted by agent
     bank = collar_bank.CollarBank(len(agents), params)
     m = len(rows)
+
+    def covariance_rows(r):
+        # no fix with a covariance type: its rows are never read, so not copied
+        return cov[r] if cov_type[r].any() else np.broadcast_to(np.nan, (len(r), 9))
+
     refitter = None
     if refit is not None:
         refitter = MotionRefitter(len(agents), refit)
@@ -425,11 +430,9 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
         order = np.lexsort((np.arange(m), refit_rounds(t[rows], bounds, refit)))
         var = fix_variance(cov_type, cov[:, 0], cov[:, 4], params.position_std_floor, hdop)
         r = rows[order]
-        ct = cov_type[r]
-        # no fix with a covariance: its rows are never read, so not copied (a view of NaN)
-        cv = cov[r] if ct.any() else np.broadcast_to(np.nan, (len(r), 9))
         out, motion = process_with_refits(bank, refitter, codes[r], t[r], e[r], n[r],
-                                          status[r], ct, cv, var[r])
+                                          status[r], cov_type[r], covariance_rows(r),
+                                          var[r])
         # the results stay in round order: each collar's rows are read through `at`
         at = np.empty(m, np.int64)
         at[order] = np.arange(m)
@@ -439,8 +442,7 @@ def _run_bank(agents, agent_col, t, e, n, status, cov_type, cov, params, progres
         motion = np.empty((m, 2))
         motion[:, 0] = params.accel_std
         motion[:, 1] = params.velocity_tau
-        ct = cov_type[rows]
-        R = bank.measurement_covariances(ct, cov[rows] if ct.any() else None, codes[rows])
+        R = bank.measurement_covariances(cov_type[rows], covariance_rows(rows), codes[rows])
         bar = None
         if progress and m > chunk:
             from tqdm import tqdm

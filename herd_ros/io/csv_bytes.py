@@ -77,10 +77,9 @@ def join_rows(fields, sep: bytes = b',', end: bytes = b'\n') -> bytes:
     """The CSV text of rows whose fields are ``(bytes, mask)`` columns (all of n rows,
     as :func:`text_field` and :func:`fixed_point` make them: zero bytes outside the mask,
     none inside; the masks are not read, and may be None): fields joined by ``sep``, each
-    row ended by ``end``. The rows' byte
-    matrix is written out and its zero bytes dropped by ``bytes.replace`` — a boolean
-    mask of the whole matrix and its gather cost 2-5 times as much, most of it faulting in
-    the mask's fresh pages."""
+    row ended by ``end``. The rows' byte matrix is written out and its zero bytes dropped
+    by ``bytes.replace`` — a boolean mask of the whole matrix and its gather cost 2-5
+    times as much, most of it faulting in the mask's fresh pages."""
     n = len(fields[0][0])
     blocks = []
     for k, (buf, _) in enumerate(fields):
