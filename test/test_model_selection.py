@@ -236,3 +236,31 @@ def test_held_out_samples_outside_the_training_region_are_not_scored():
     assert sel.outside_region == edges[-1] - edges[-2]
     assert sel.samples == 2 * (T - 2) - sel.outside_region
     assert sel.as_dict()['held_out_samples']['outside_training_region'] == sel.outside_region
+
+
+def test_the_one_standard_error_rule_refuses_a_simpler_candidate_that_is_erratic_and_worse():
+    """Hand-made block errors (10 blocks of 100 samples): the best (3 parameters) is 1.0 in
+    eight blocks, 0.95 and 1.05 in the last two (its standard error over the blocks
+    0.00745); "steady" (2 parameters) is 0.025 above or 0.015 below it by turns (mean
+    excess 0.005, paired standard error 0.0063); "erratic" (1 parameter) is 1.0 in eight
+    blocks, 0.2 and 40 in the last two (mean 4.72, excess 3.82). Paired over the blocks,
+    erratic's excess is within its own standard error (3.90: its one bad block makes it
+    large), so the paired rule alone would take it; the best's own standard error refuses
+    it, and steady, within both, is chosen."""
+    from herd_ros.estimation.model_selection import _one_standard_error
+    count = np.full(10, 100.0)
+    best_blocks = np.array([1.0] * 8 + [0.95, 1.05])
+    mse = {'best': best_blocks, 'steady': best_blocks + np.tile([0.025, -0.015], 5),
+           'erratic': np.array([1.0] * 8 + [0.2, 40.0])}
+    sse = {k: v * count for k, v in mse.items()}
+    n_params = {'best': 3, 'steady': 2, 'erratic': 1}
+    table, chosen = _one_standard_error(list(mse), sse, n_params, count, 1.0)
+    rows = {r['structure']: r for r in table}
+    assert rows['erratic']['excess'] == pytest.approx(3.82, abs=1e-9)
+    assert rows['erratic']['excess'] <= rows['erratic']['excess_se']   # paired: eligible
+    assert rows['steady']['excess'] == pytest.approx(0.005, abs=1e-9)
+    assert rows['steady']['excess'] <= rows['steady']['excess_se']
+    assert chosen == 'steady'
+    # with steady left out, the best itself (never the erratic one)
+    _, chosen = _one_standard_error(['best', 'erratic'], sse, n_params, count, 1.0)
+    assert chosen == 'best'
