@@ -46,6 +46,9 @@ def test_ingest_gps_csv(gps_csv, tmp_path, capsys, smoother):
     # no track pose before it
     assert '(n 894 of 897)' in lines[first + 1]
     assert 3.0 < raw < 3.7 and track < raw
+    # the written track scored as a user would (its last pose before each fix): only where
+    # it is causal, without a smoother
+    assert ('track file' in text) == (smoother == 'none')
     # per collar, what was kept and why anything was not: every input fix is counted once
     table = pd.read_csv(out.with_suffix('.collars.csv'))
     fixes = pd.read_csv(gps_csv)

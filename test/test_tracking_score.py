@@ -74,6 +74,19 @@ def test_ingest_scores_every_fix_and_the_accepted_ones_by_hand():
     assert every['eligible'] == 3 and acc['eligible'] == 2
     assert 'every valid fix' in text and '(n 3 of 3)' in text and '(n 2 of 2)' in text
     assert 'last raw fix' in text
+    # the track file: a clock every 5 s at the animal's place, NaN at 25 s (stale); each
+    # fix against the clock's last finite pose before it: 5 s, 15 s, 20 s -> 5, 5, 30 m
+    ticks = np.arange(0.0, 30.0, 5.0)
+    poses = np.column_stack([ticks, np.zeros(6)])[:, None, :].copy()
+    poses[5] = np.nan
+    file = ingest_tracking_score(raw, {'a': tl}, clock=(ticks, poses, ['a']))['file']
+    assert file['track']['n'] == 3 and file['eligible'] == 3
+    assert abs(file['track']['median'] - 5.0) < 1e-9
+    assert abs(file['track']['rms'] - np.sqrt((25 + 25 + 900) / 3)) < 1e-9
+    assert abs(file['last_raw_fix']['rms'] - np.sqrt((100 + 100 + 900) / 3)) < 1e-9
+    assert 'track file' in format_ingest_tracking_score(
+        ingest_tracking_score(raw, {'a': tl}, clock=(ticks, poses, ['a'])))
+    assert 'file' not in score
     # above max_scored fixes, every k-th fix of each collar (k = 2 here: 0 and 20 s)
     thin = ingest_tracking_score(raw, {'a': tl}, max_scored=2)['every']
     assert thin['stride'] == 2 and thin['eligible'] == 1 and thin['track']['n'] == 1

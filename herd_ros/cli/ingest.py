@@ -161,8 +161,10 @@ def run(args) -> int:
             print(format_motion_fits(fits))
     from herd_ros.ingest.tracking_score import (format_ingest_tracking_score,
                                                 ingest_tracking_score)
-    print(format_ingest_tracking_score(ingest_tracking_score(traj.meta['raw_fixes'],
-                                                             traj.meta['timelines'])))
+    # the written track scored as a user would score it (causal only without a smoother)
+    clock = (traj.times, traj.positions, traj.agents) if args.smoother == 'none' else None
+    print(format_ingest_tracking_score(ingest_tracking_score(
+        traj.meta['raw_fixes'], traj.meta['timelines'], clock=clock)))
     print(f'wrote {args.output} (smoother: {args.smoother}) and, per collar, what was kept '
           f'and why anything was not: {table_path}')
     return 0

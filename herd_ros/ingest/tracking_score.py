@@ -157,7 +157,7 @@ MAX_SCORED = 50_000
 
 
 def ingest_tracking_score(raw_fixes: dict, timelines: dict,
-                          max_scored: int = MAX_SCORED) -> dict:
+                          max_scored: int = MAX_SCORED, clock=None) -> dict:
     """The measure on an ingested file itself, as ``herd-ros ingest`` reports it.
 
     Args:
@@ -168,9 +168,15 @@ def ingest_tracking_score(raw_fixes: dict, timelines: dict,
         max_scored: above this many fixes, every k-th fix of each collar is scored
             (k the smallest that keeps them within it; ``stride`` in the tables): the
             statistics of 50 000 fixes, at a tenth of the cost of 360 000.
+        clock: ``(times (T,), positions (T, N, 2), agents)`` of the written track (the
+            herd clock, NaN where a collar has no pose), or None. Given, a third table
+            ``file`` scores every valid fix against the clock's last finite pose before it,
+            however old: what a user reading the track file gets (a collar that refuses its
+            fixes for longer than ``stale_after`` has no rows there, so its last row is from
+            before the refusals; the collar track is not scored while stale).
 
     Returns:
-        ``{'every': table, 'accepted': table}``, each table ``{'track':
+        ``{'every': table, 'accepted': table[, 'file': table]}``, each table ``{'track':
         summarise(d_track), 'last_raw_fix': summarise(d_raw), 'paired': paired(d_track,
         d_raw), 'eligible': fixes with a raw fix before them, 'stride': k}`` (a fix is
         scored where the track too has a pose before it: not while its collar is stale or
@@ -185,7 +191,15 @@ def ingest_tracking_score(raw_fixes: dict, timelines: dict,
     used = [a for a, (t, _) in raw_fixes.items() if a in timelines and len(t)]
     total = sum(len(raw_fixes[a][0]) for a in used)
     stride = max(1, -(-total // int(max_scored)))
-    zs, raws, tracks, took = [], [], [], []
+    zs, raws, tracks, took, files = [], [], [], [], []
+    column = {str(a): i for i, a in enumerate(clock[2])} if clock is not None else {}
+    if clock is not None:
+        # each tick's last tick with a finite pose, per collar (-1: none yet), made once
+        ticks = np.asarray(clock[0], dtype=float)
+        poses = np.asarray(clock[1], dtype=float)
+        finite = np.isfinite(poses).all(axis=2)
+        last = np.maximum.accumulate(np.where(finite, np.arange(len(ticks))[:, None], -1),
+                                     axis=0)
     for a in used:
         t = np.asarray(raw_fixes[a][0], dtype=float)
         z = np.asarray(raw_fixes[a][1], dtype=float).reshape(-1, 2)
@@ -193,6 +207,8 @@ def ingest_tracking_score(raw_fixes: dict, timelines: dict,
         raws.append(_last_raw_before(t, z, t[pick]))
         zs.append(z[pick])
         tracks.append(collar_track_before(timelines[a], t[pick]))
+        if clock is not None:                     # (stamps, collar column) for below
+            files.append((t[pick], np.full(len(pick), column.get(str(a), -1))))
         states = np.asarray(timelines[a].t, dtype=float)
         j = np.minimum(np.searchsorted(states, t[pick]), max(len(states) - 1, 0))
         took.append((states[j] == t[pick]) if len(states) else np.zeros(len(pick), bool))
@@ -207,11 +223,24 @@ def ingest_tracking_score(raw_fixes: dict, timelines: dict,
     d_track = np.hypot(*(track - z).T)
     d_raw = np.hypot(*(raw - z).T)
     out = {}
-    for name, mask in (('every', ok), ('accepted', ok & took)):
-        d_t, d_r = d_track[mask], d_raw[mask]
+    tables = [('every', ok, d_track), ('accepted', ok & took, d_track)]
+    if clock is not None:
+        file = np.full((len(z), 2), np.nan)
+        if files and len(ticks):
+            stamps = np.concatenate([f[0] for f in files])
+            col = np.concatenate([f[1] for f in files])
+            k = np.searchsorted(ticks, stamps, side='left') - 1        # strictly before
+            j = np.where((k >= 0) & (col >= 0), last[np.maximum(k, 0), np.maximum(col, 0)],
+                         -1)
+            file[j >= 0] = poses[j[j >= 0], col[j >= 0]]
+        tables.append(('file', has_raw & np.isfinite(file).all(axis=1),
+                       np.hypot(*(file - z).T)))
+    for name, mask, d in tables:
+        d_t, d_r = d[mask], d_raw[mask]
         out[name] = {'track': summarise(d_t), 'last_raw_fix': summarise(d_r),
                      'paired': paired(d_t, d_r),
-                     'eligible': int(np.sum(has_raw if name == 'every' else has_raw & took)),
+                     'eligible': int(np.sum(has_raw & took if name == 'accepted'
+                                            else has_raw)),
                      'stride': stride}
     return out
 
@@ -222,16 +251,20 @@ def format_ingest_tracking_score(score: dict) -> str:
              'and from the last raw fix before it (no filter)',
              f'{"fixes scored":<24} {"":<13} {"median":>8} {"p90":>8} {"p99":>8} '
              f'{"RMS":>8} {">100 m":>7}']
-    for name, label in (('every', 'every valid fix'), ('accepted', 'fixes accepted')):
+    rows = [('every', 'every valid fix', 'collar track'),
+            ('accepted', 'fixes accepted', 'collar track')]
+    if 'file' in score:
+        rows.append(('file', 'every valid fix', 'track file'))
+    for name, label, track_label in rows:
         tab = score[name]
-        for who, wl in (('track', 'collar track'), ('last_raw_fix', 'last raw fix')):
+        for who, wl in (('track', track_label), ('last_raw_fix', 'last raw fix')):
             s = tab[who]
             lines.append(f'{label:<24} {wl:<13} {s["median"]:8.2f} {s["p90"]:8.2f} '
                          f'{s["p99"]:8.1f} {s["rms"]:8.1f} {100 * s["beyond_100m"]:6.2f}%')
             label = f'  (n {s["n"]} of {tab["eligible"]})'
         p = tab['paired']
         if np.isfinite(p['closer']):
-            lines.append(f'{"":<24} the collar track is the closer at '
+            lines.append(f'{"":<24} the {track_label} is the closer at '
                          f'{100 * p["closer"]:.1f} % of the fixes where the two differ')
     stride = score['every'].get('stride', 1)
     lines.append('(n: the fixes scored, of those with a fix before them'
@@ -239,4 +272,12 @@ def format_ingest_tracking_score(score: dict) -> str:
                     else '')
                  + '; the rest came while the collar was stale or its track not yet '
                  'confirmed)')
+    if 'file' in score:
+        lines += ['(track file: the last pose the written track holds before each fix, '
+                  'however old: a collar',
+                  ' that refuses its fixes for longer than stale_after has no rows until it '
+                  'takes one again,',
+                  ' so such a fix is scored against its pose from before the refusals, and '
+                  'a burst it refused',
+                  ' counts against it at each of its fixes)']
     return '\n'.join(lines)
