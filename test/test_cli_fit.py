@@ -101,8 +101,9 @@ BAD = {
     'fewer samples than parameters': lambda p: _write(p, _steps(n=6)),
     'missing column': lambda p: _write(p, ['0,a,1\n'], header='time,agent,x\n'),
     'not a file': lambda p: p.parent / 'nope.csv',
-    'agent id that is no ROS name': lambda p: _write(p, [ln.replace(',a,', ',60s,')
-                                                          for ln in _steps()]),
+    # ids that are no ROS names are made so (herd_ros.agent_ids); two that would merge
+    'agent ids that would become one ROS name': lambda p: _write(
+        p, _steps(agents=('cow 1', 'cow_1'))),
     'agent only in the held-out part': lambda p: _write(p, _steps(agents=('a', 'b'))
                                                         + [f'{k},c,5,5\n'
                                                            for k in range(45, 50)]),

@@ -105,5 +105,7 @@ def test_normalise_keeps_a_fixes_table_and_converts_anything_else(tmp_path):
     assert list(raw.columns) == ['agent', 'time', 'lat', 'lon', 'status']    # untouched
     shifted = fixes.iloc[1:]                        # not the default index: a new table
     assert list(normalise_fixes(shifted).index) == [0]
+    # the reader made the id '7' a ROS name (herd_ros.agent_ids); normalise_fixes itself
+    # only converts an id that is not a str
     ids = fixes.assign(agent=fixes['agent'].astype(object).where([True, False], 3))
-    assert list(normalise_fixes(ids)['agent']) == ['7', '3']   # an id not a str: converted
+    assert list(normalise_fixes(ids)['agent']) == ['id_7', '3']

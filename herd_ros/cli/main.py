@@ -14,7 +14,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
+from herd_ros.agent_ids import AgentIdsRenamed
 from herd_ros.errors import HerdInputError
 
 class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -116,6 +118,19 @@ def main(argv: list[str] | None = None) -> int:
     return status
 
 
+def _note(verb: str):
+    """A ``warnings.showwarning`` that prints :class:`AgentIdsRenamed` as a note of the
+    verb and any other warning as Python would."""
+    default = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, AgentIdsRenamed):
+            print(f'herd-ros {verb}: note: {message}', file=sys.stderr)
+        else:
+            default(message, category, filename, lineno, file, line)
+    return show
+
+
 def _main(argv: list[str] | None) -> int:
     words = sys.argv[1:] if argv is None else list(argv)
     if not (words and words[0] in VERBS):
@@ -126,7 +141,11 @@ def _main(argv: list[str] | None) -> int:
         from herd_ros.process_memory import keep_freed_memory
         keep_freed_memory()
     try:
-        status = args._run(args)
+        with warnings.catch_warnings():
+            # a reader's note (ids renamed) as one line, not a Python warning
+            warnings.showwarning = _note(args.verb)
+            warnings.simplefilter('always', AgentIdsRenamed)
+            status = args._run(args)
     except HerdInputError as exc:
         print(f'herd-ros {args.verb}: error: {exc}', file=sys.stderr)
         return 2

@@ -172,7 +172,7 @@ def read_gps_csv(path) -> pd.DataFrame:
     empty = df['agent'].isna().to_numpy()
     if empty.any():
         _fail(path, f'line {int(np.argmax(empty)) + 2}: empty agent')
-    out = pd.DataFrame({'time': parse_times(path, df['time']), 'agent': _ids(df['agent'])})
+    out = pd.DataFrame({'time': parse_times(path, df['time']), 'agent': _ids(df['agent'], path)})
     for col in ('lat', 'lon'):
         out[col] = _numeric(path, df, col, allow_nan=True)
     _check_ranges(path, out)
@@ -183,11 +183,12 @@ def read_gps_csv(path) -> pd.DataFrame:
     return normalise_fixes(out)
 
 
-def _ids(raw: pd.Series) -> np.ndarray:
-    """Agent ids, stripped: each distinct id once (a herd has few ids and many rows)."""
+def _ids(raw: pd.Series, path) -> np.ndarray:
+    """Agent ids, stripped and made ROS name tokens (:func:`~herd_ros.agent_ids
+    .ros_agent_ids`): each distinct id once (a herd has few ids and many rows)."""
+    from herd_ros.agent_ids import ros_agent_ids
     codes, uniques = pd.factorize(raw, use_na_sentinel=False)
-    stripped = np.array([str(u).strip() for u in uniques], dtype=object)
-    return stripped[codes]
+    return np.array(ros_agent_ids(uniques, str(path)), dtype=object)[codes]
 
 
 def _check_ranges(path, out, lat='lat', lon='lon'):
@@ -210,7 +211,7 @@ def read_movebank_csv(path) -> pd.DataFrame:
     if empty.any():
         _fail(path, f'line {int(np.argmax(empty)) + 2}: empty individual-local-identifier')
     out = pd.DataFrame({'time': parse_times(path, df['timestamp'], 'timestamp'),
-                        'agent': _ids(df['individual-local-identifier'])})
+                        'agent': _ids(df['individual-local-identifier'], path)})
     out['lat'] = _numeric(path, df, 'location-lat', allow_nan=True)
     out['lon'] = _numeric(path, df, 'location-long', allow_nan=True)
     _check_ranges(path, out, 'location-lat', 'location-long')
@@ -263,6 +264,7 @@ def read_gpx(path) -> pd.DataFrame:
     if not rows:
         _fail(path, 'no <trkpt> points in the GPX tracks')
     raw = pd.DataFrame(rows, columns=['time', 'agent', 'lat', 'lon', 'alt', 'hdop'])
+    raw['agent'] = _ids(raw['agent'], path)
     if not np.isfinite(raw['hdop'].to_numpy()).any():
         raw = raw.drop(columns='hdop')
     out = raw.copy()
