@@ -80,3 +80,11 @@ def test_collars_named_by_serial_number_ingest_fit_and_import(tmp_path, capsys):
     assert main(['import', str(src), '-o', str(bag)]) == 0
     topics = sorted(bag_info(bag).topics)
     assert topics == ['/herd/Cow_12/fix', '/herd/cow_c/fix', '/herd/id_4262_8483/fix']
+
+
+def test_a_frame_id_names_its_collar_as_the_readers_would():
+    from herd_ros.ingest.fix_stream import collar_frames, frame_collar
+    frames = collar_frames(['id_4262_8483', 'cow_c'])
+    assert [frame_collar(frames, f) for f in ('4262-8483', '4262-8483_gps', '4262-8483/gps',
+                                              'cow c', 'cow c/gps')] == [0, 0, 0, 1, 1]
+    assert [frame_collar(frames, f) for f in ('cow x', '', '  ', '4262')] == [-1] * 4

@@ -408,10 +408,24 @@ def collar_frames(agents) -> dict:
     return frames
 
 
+def frame_collar(frames: dict, frame: str) -> int:
+    """The collar of a ``header.frame_id`` that names it only once made a ROS name, as the
+    file readers make ids (:func:`herd_ros.agent_ids.ros_agent_id`): ``4262-8483``,
+    ``4262-8483_gps`` or ``4262-8483/gps`` for the agent ``id_4262_8483``; -1 if none
+    (``frames``: :func:`collar_frames`)."""
+    from herd_ros.agent_ids import ros_agent_id
+    base = str(frame)
+    for suffix in ('/gps', '_gps'):
+        if base.endswith(suffix):
+            base = base[:-len(suffix)]
+            break
+    return frames.get(ros_agent_id(base), -1) if base.strip() else -1
+
+
 def datum_text(datum, source: str) -> str:
     """The one line that says which datum is used."""
     return 'datum (%s): lat %.9f lon %.9f alt %.3f' % ((source,) + tuple(datum))
 
 
 __all__ = ['COUNTERS', 'FixStream', 'REJECTION_TEXT', 'StreamOutput', 'clock_jumps',
-           'collar_frames', 'datum_text', 'future_stamps']
+           'collar_frames', 'datum_text', 'frame_collar', 'future_stamps']

@@ -2,7 +2,9 @@
 
 Subscribes ``/herd/<agent>/fix`` (NavSatFix, sensor-data QoS, keep last ``fix_queue_depth``)
 per collar of ``agents``, or one ``fix_topic`` for every collar (a gateway's; the collar
-named by ``header.frame_id``: ``<agent>``, ``<agent>_gps`` or ``<agent>/gps``). Publishes
+named by ``header.frame_id``: ``<agent>``, ``<agent>_gps`` or ``<agent>/gps``, the id also
+as it was before it was made a ROS name, ``4262-8483`` for ``id_4262_8483``:
+:mod:`herd_ros.agent_ids`). Publishes
 
 * ``/herd/<agent>/odom`` (or ``odom_topic``) after every accepted fix: frame ``frame_id``,
   child ``<agent>``, stamped with the fix; filtered ENU position and velocity with their
@@ -39,7 +41,7 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import NavSatFix
 
 from herd_ros.ingest.collar_filter import COUNTERS
-from herd_ros.ingest.fix_stream import FixStream, collar_frames, datum_text
+from herd_ros.ingest.fix_stream import FixStream, collar_frames, datum_text, frame_collar
 from herd_ros.io.cdr import OdometryEncoder, decode_navsatfixes, encode_pose_array, take_fixes
 from herd_ros.nodes.ros_common import (OK, WARN, LiveParameters, declare_parameters,
                                        describe_remaining_parameters, diagnostic_array,
@@ -173,6 +175,14 @@ class GpsIngest(Node):
             return np.fromiter((c for k, (c, _) in enumerate(inbox) if k not in skip),
                                np.int64, m), fixes
         collars = np.fromiter((self._frames.get(f, -1) for f in fixes.frame_id), np.int64, m)
+        unknown = np.flatnonzero(collars < 0)
+        if not len(unknown):
+            return collars, fixes
+        for k in unknown:          # a frame that names a collar once made a ROS name
+            i = frame_collar(self._frames, fixes.frame_id[k])
+            if i >= 0:
+                self._frames[fixes.frame_id[k]] = i        # known from now on
+                collars[k] = i
         unknown = np.flatnonzero(collars < 0)
         if not len(unknown):
             return collars, fixes
