@@ -57,7 +57,11 @@ def test_ingest_gps_csv(gps_csv, tmp_path, capsys, smoother):
         counted = row['accepted'] + sum(row[c] for c in table.columns
                                         if c.startswith('rejected_'))
         assert counted == (fixes['agent'] == row['agent']).sum()
-    assert {'from_h', 'to_h', 'ticks'} <= set(table.columns)
+    assert {'from_h', 'to_h', 'ticks', 'refused_run_fixes', 'refused_run_from_h',
+            'refused_run_min'} <= set(table.columns)
+    assert (table['refused_run_fixes'] <= table['rejected_gate'] + table['rejected_speed']
+            + table['rejected_range'] + table['rejected_unconfirmed']
+            + table['rejected_time']).all()
     (traj,) = read_trajectory_csv(out)           # uniform, complete: what `fit` needs
     assert traj.agents == ['cow_0', 'cow_1', 'cow_2'] and traj.dt == pytest.approx(2.0)
     assert traj.n_steps > 140

@@ -91,3 +91,19 @@ def test_ingest_scores_every_fix_and_the_accepted_ones_by_hand():
     thin = ingest_tracking_score(raw, {'a': tl}, max_scored=2)['every']
     assert thin['stride'] == 2 and thin['eligible'] == 1 and thin['track']['n'] == 1
     assert abs(thin['last_raw_fix']['median'] - 10.0) < 1e-9
+
+
+def test_the_longest_run_of_fixes_the_track_did_not_take_by_hand():
+    from herd_ros.ingest.pipeline import format_refusal_runs, refusal_runs
+    # fixes at 0..9 s; the track took 0, 1, 5 and 9 (its states): runs 2-4 (3 fixes) and
+    # 6-8 (3 fixes, the later one not longer: the first is kept); a collar that took all
+    x = np.zeros((4, 4))
+    took = StateTimeline(np.array([0.0, 1.0, 5.0, 9.0]), x, np.zeros((4, 4, 4)), 1e-9, 1e6)
+    every = StateTimeline(np.arange(3.0), x[:3], np.zeros((3, 4, 4)), 1e-9, 1e6)
+    raw = {'a': (np.arange(10.0), np.zeros((10, 2))), 'b': (np.arange(3.0), np.zeros((3, 2)))}
+    runs = refusal_runs(raw, {'a': took, 'b': every}, t0=-100.0)
+    assert runs['a'] == (3, 102.0, 104.0)
+    assert runs['b'][0] == 0 and np.isnan(runs['b'][1])
+    # said only where a run outlasts stale_after (2 s here, not 3)
+    assert 'a 3 fixes from 0.03 h for 0 min' in format_refusal_runs(runs, 1.5)
+    assert format_refusal_runs(runs, 2.0) == ''

@@ -139,12 +139,16 @@ def run(args) -> int:
           f'trailing ticks cut); stale agent-ticks (NaN: before a collar\'s first fix, '
           f'after its last, or silent longer than '
           f'{traj.meta["filter_params"].stale_after:g} s): {int(stale.sum())} of {stale.size}')
-    from herd_ros.ingest.pipeline import (PRINTED_COLLARS, collar_table, format_motion_fits,
-                                          lost_most)
+    from herd_ros.ingest.pipeline import (PRINTED_COLLARS, collar_table,
+                                          format_motion_fits, format_refusal_runs, lost_most,
+                                          refusal_runs)
     counters, spans = traj.meta['counters'], collar_spans(traj)
     fits = traj.meta.get('motion_fits')
+    refusals = refusal_runs(traj.meta['raw_fixes'], traj.meta['timelines'],
+                            traj.times[0] if len(traj.times) else 0.0)
     table_path = Path(args.output).with_suffix('.collars.csv')
-    collar_table(counters, spans, fits).to_csv(table_path, index=False, float_format='%.6g')
+    collar_table(counters, spans, fits, refusals).to_csv(table_path, index=False,
+                                                         float_format='%.6g')
     if len(counters) > PRINTED_COLLARS:
         shown = lost_most(counters, 10)
         total = {k: sum(c.get(k, 0) for c in counters.values()) for k in
@@ -159,6 +163,9 @@ def run(args) -> int:
         print(format_counters(counters, spans))
         if fits is not None:
             print(format_motion_fits(fits))
+    line = format_refusal_runs(refusals, traj.meta['filter_params'].stale_after)
+    if line:
+        print(line)
     from herd_ros.ingest.tracking_score import (format_ingest_tracking_score,
                                                 ingest_tracking_score)
     # the written track scored as a user would score it (causal only without a smoother)

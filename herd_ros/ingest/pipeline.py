@@ -700,6 +700,46 @@ def collar_spans(traj: HerdTrajectory) -> dict:
     return out
 
 
+def refusal_runs(raw_fixes: dict, timelines: dict, t0: float = 0.0) -> dict:
+    """Per agent, its longest run of consecutive fixes (its fixes with a position, in stamp
+    order: :func:`raw_fixes_by_agent`) that its track did not take (no state at the fix's
+    stamp in ``timelines``: refused, not yet confirmed, or out of order): ``(fixes, from_s,
+    to_s)``, the times of the run's first and last fix relative to ``t0``; ``(0, nan,
+    nan)`` when the track took every fix. A run longer than ``stale_after`` is a stretch
+    with no rows in the track file (the collar is stale), and a fix after it is scored
+    against its pose from before
+    (:func:`~herd_ros.ingest.tracking_score.ingest_tracking_score`)."""
+    out = {}
+    for a, (t, _) in raw_fixes.items():
+        t = np.asarray(t, dtype=float)
+        states = np.asarray(timelines[a].t, dtype=float) if a in timelines else np.zeros(0)
+        j = np.minimum(np.searchsorted(states, t), max(len(states) - 1, 0))
+        took = (states[j] == t) if len(states) else np.zeros(len(t), bool)
+        edges = np.diff(np.r_[0, (~took).astype(np.int8), 0])
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        if not len(starts):
+            out[a] = (0, np.nan, np.nan)
+            continue
+        k = int(np.argmax(ends - starts))
+        out[a] = (int(ends[k] - starts[k]), float(t[starts[k]] - t0),
+                  float(t[ends[k] - 1] - t0))
+    return out
+
+
+def format_refusal_runs(runs: dict, stale_after: float, shown: int = 5) -> str:
+    """One line on the collars whose longest refused run outlasted ``stale_after`` (the
+    ``shown`` longest), or '' when none did."""
+    long = {a: r for a, r in runs.items() if r[0] and r[2] - r[1] > stale_after}
+    if not long:
+        return ''
+    order = sorted(long, key=lambda a: -(long[a][2] - long[a][1]))
+    parts = [f'{a} {long[a][0]} fixes from {long[a][1] / 3600:.2f} h for '
+             f'{(long[a][2] - long[a][1]) / 60:.0f} min' for a in order[:shown]]
+    more = f' and {len(order) - shown} more' if len(order) > shown else ''
+    return (f'refused runs longer than stale_after ({stale_after:g} s: the collar has no '
+            f'rows in the track file through them): ' + '; '.join(parts) + more)
+
+
 def format_counters(counters: dict, spans: dict | None = None) -> str:
     """A small table of per-agent counters (rows: agents, columns: :data:`COUNTERS`), with
     each agent's span on the clock (:func:`collar_spans`: from, to in hours, ticks with a
@@ -724,11 +764,13 @@ def format_counters(counters: dict, spans: dict | None = None) -> str:
 PRINTED_COLLARS = 30
 
 
-def collar_table(counters: dict, spans: dict | None = None, fits: dict | None = None):
+def collar_table(counters: dict, spans: dict | None = None, fits: dict | None = None,
+                 refusals: dict | None = None):
     """Per collar, everything the ingest says of it, as a DataFrame (rows: collars): the
     :data:`COUNTERS` (accepted and each rejection reason), its span on the clock
-    (:func:`collar_spans`: from_h, to_h, ticks) and its last fitted motion model (model,
-    tau_v_s, D_m2_s, speed_ms, fix_std_m, fixes_fitted)."""
+    (:func:`collar_spans`: from_h, to_h, ticks), its longest run of refused fixes
+    (:func:`refusal_runs`: refused_run_fixes, refused_run_from_h, refused_run_min) and its
+    last fitted motion model (model, tau_v_s, D_m2_s, speed_ms, fix_std_m, fixes_fitted)."""
     import pandas as pd
     rows = []
     for agent, c in counters.items():
@@ -738,6 +780,10 @@ def collar_table(counters: dict, spans: dict | None = None, fits: dict | None = 
         if spans is not None:
             lo, hi, n = spans.get(agent, (np.nan, np.nan, 0))
             row.update(from_h=lo / 3600, to_h=hi / 3600, ticks=int(n))
+        if refusals is not None:
+            k, lo, hi = refusals.get(agent, (0, np.nan, np.nan))
+            row.update(refused_run_fixes=int(k), refused_run_from_h=lo / 3600,
+                       refused_run_min=(hi - lo) / 60)
         f = (fits or {}).get(agent)
         if fits is not None:
             row.update(model=f.model if f is not None else 'prior',
