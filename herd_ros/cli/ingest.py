@@ -3,7 +3,10 @@
 DATA is a GPS CSV, Movebank CSV, GPX file, rosbag2 directory or ``.mcap`` file. The path is
 :func:`herd_ros.ingest.pipeline.trajectory_from_fixes`: exact WGS84 -> ENU about the datum,
 one Kalman filter per collar with gating, the herd clock, an optional smoother. Prints the
-datum and the per-collar counters; writes the trajectory CSV of doc/formats.md.
+datum, the per-collar counters, the collars whose refused fixes outlasted ``stale_after``
+and the tracking score (the collar track, and the written file read as a user would,
+against the last raw fix); writes the trajectory CSV of doc/formats.md and, beside it, the
+per-collar table ``<out>.collars.csv``.
 """
 from __future__ import annotations
 
