@@ -18,7 +18,7 @@ from __future__ import annotations
 import re
 import warnings
 
-from herd_ros.errors import HerdInputError
+from herd_ros.errors import HerdInputError, InputNote
 
 #: a valid ROS name token (what :func:`ros_agent_id` returns)
 ROS_TOKEN = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
@@ -28,7 +28,7 @@ PREFIX = 'id_'
 NOTE_MAX = 6
 
 
-class AgentIdsRenamed(UserWarning):
+class AgentIdsRenamed(InputNote):
     """Some agent ids of a file were not ROS name tokens and were renamed."""
 
 

@@ -7,3 +7,8 @@ class HerdInputError(ValueError):
     The command line prints it as a single line and exits non-zero; nodes log it and
     keep running.
     """
+
+
+class InputNote(UserWarning):
+    """Something a reader did to the input that the user should know of (ids renamed,
+    columns taken by another name); the command line prints it as one note line."""

@@ -109,3 +109,41 @@ def test_normalise_keeps_a_fixes_table_and_converts_anything_else(tmp_path):
     # only converts an id that is not a str
     ids = fixes.assign(agent=fixes['agent'].astype(object).where([True, False], 3))
     assert list(normalise_fixes(ids)['agent']) == ['id_7', '3']
+
+
+def test_gps_columns_under_other_names_are_read_and_said(tmp_path):
+    import warnings
+
+    from herd_ros.errors import InputNote
+    from herd_ros.io.gps_files import read_fix_file, sniff_format
+    p = tmp_path / 'logger.csv'
+    p.write_text('Timestamp,ID,Latitude,Longitude,alt\n'
+                 '2015-08-06T17:15:20Z,007,27.0,-108.8,300\n'
+                 '2015-08-06T17:15:50Z,007,27.0001,-108.8,301\n')
+    assert sniff_format(p) == 'gps'
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        fixes = read_fix_file(p)
+    notes = [str(w.message) for w in caught if issubclass(w.category, InputNote)]
+    assert any("'Timestamp' read as 'time'" in n and "'ID' read as 'agent'" in n
+               and "'Latitude' read as 'lat'" in n for n in notes), notes
+    # the id kept as text (not the number 7), then made a ROS name
+    assert list(fixes['agent']) == ['id_007', 'id_007']
+    assert list(fixes['time']) == [1438881320.0, 1438881350.0]
+    assert list(fixes['lat']) == [27.0, 27.0001] and list(fixes['alt']) == [300.0, 301.0]
+    # a file that names its columns as the GPS CSV does is read without a note
+    q = tmp_path / 'plain.csv'
+    q.write_text('time,agent,lat,lon\n1,cow_a,27.0,-108.8\n')
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        read_fix_file(q)
+    assert not [w for w in caught if issubclass(w.category, InputNote)]
+
+
+def test_two_columns_that_could_be_one_are_one_clear_error(tmp_path):
+    from herd_ros.io.gps_files import read_gps_csv
+    p = tmp_path / 'two.csv'
+    p.write_text('time,id,animal,lat,lon\n1,a,b,27.0,-108.8\n')
+    with pytest.raises(HerdInputError, match="'id', 'animal' could each be the 'agent' "
+                                             "column"):
+        read_gps_csv(p)

@@ -16,8 +16,7 @@ import importlib
 import sys
 import warnings
 
-from herd_ros.agent_ids import AgentIdsRenamed
-from herd_ros.errors import HerdInputError
+from herd_ros.errors import HerdInputError, InputNote
 
 class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     """Shows an option's default only when it has one worth saying: not for None, not for
@@ -119,12 +118,13 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _note(verb: str):
-    """A ``warnings.showwarning`` that prints :class:`AgentIdsRenamed` as a note of the
-    verb and any other warning as Python would."""
+    """A ``warnings.showwarning`` that prints an :class:`~herd_ros.errors.InputNote` (ids
+    renamed, columns taken by another name) as a note of the verb and any other warning as
+    Python would."""
     default = warnings.showwarning
 
     def show(message, category, filename, lineno, file=None, line=None):
-        if issubclass(category, AgentIdsRenamed):
+        if issubclass(category, InputNote):
             print(f'herd-ros {verb}: note: {message}', file=sys.stderr)
         else:
             default(message, category, filename, lineno, file, line)
@@ -142,9 +142,9 @@ def _main(argv: list[str] | None) -> int:
         keep_freed_memory()
     try:
         with warnings.catch_warnings():
-            # a reader's note (ids renamed) as one line, not a Python warning
+            # a reader's note (ids renamed, ...) as one line, not a Python warning
             warnings.showwarning = _note(args.verb)
-            warnings.simplefilter('always', AgentIdsRenamed)
+            warnings.simplefilter('always', InputNote)
             status = args._run(args)
     except HerdInputError as exc:
         print(f'herd-ros {args.verb}: error: {exc}', file=sys.stderr)

@@ -47,6 +47,37 @@ MOVEBANK_COLUMNS = ('timestamp', 'location-long', 'location-lat',
                     'individual-local-identifier')
 
 
+#: other names a GPS CSV's columns go by (compared without case): a column missing under
+#: its own name is taken under one of these, and the reader says so (not ``alt``: a
+#: logger's altitude is often above the geoid, the GPS CSV's above the ellipsoid)
+GPS_ALIASES = {
+    'time': ('timestamp', 'datetime', 'date_time', 'time_utc', 'utc'),
+    'agent': ('id', 'animal', 'animal_id', 'individual', 'collar', 'collar_id', 'tag',
+              'tag_id', 'device', 'device_id'),
+    'lat': ('latitude',),
+    'lon': ('longitude', 'long', 'lng'),
+}
+
+
+def gps_columns(path, header) -> dict:
+    """{column in the file: its GPS CSV name} for the columns of :data:`GPS_ALIASES` the
+    file gives under another name (only where the GPS CSV name itself is absent; compared
+    without case); one clear error when two of its columns could be the same one."""
+    cols = [str(c).strip() for c in header]
+    present = {c.lower() for c in cols}
+    out = {}
+    for name, aliases in GPS_ALIASES.items():
+        if name in present:
+            continue
+        hits = [c for c in cols if c.lower() == name or c.lower() in aliases]
+        if len(hits) > 1:
+            _fail(path, f'columns {", ".join(repr(h) for h in hits)} could each be the '
+                        f'{name!r} column; rename the one that is to {name!r}')
+        if hits and hits[0] != name:
+            out[hits[0]] = name
+    return out
+
+
 def normalise_fixes(df: pd.DataFrame) -> pd.DataFrame:
     """Add the optional columns with their defaults and fix the dtypes (a table that is
     already a fixes table, as every reader returns, is returned as it is: no copy)."""
@@ -105,7 +136,8 @@ def _read_csv(path, text_columns=()) -> pd.DataFrame:
     check_csv_text(path)
     try:
         header = pd.read_csv(path, nrows=0, skipinitialspace=True).columns
-        text = {c: str for c in header if str(c).strip() in text_columns}
+        wanted = {t.lower() for t in text_columns}
+        text = {c: str for c in header if str(c).strip().lower() in wanted}
         df = pd.read_csv(path, dtype=text, skipinitialspace=True, keep_default_na=True)
     except Exception as exc:
         _fail(path, f'not a readable CSV ({exc.__class__.__name__}: {exc})'.splitlines()[0])
@@ -163,8 +195,19 @@ def parse_times(path, raw: pd.Series, field: str = 'time') -> np.ndarray:
 
 
 def read_gps_csv(path) -> pd.DataFrame:
-    """A GPS CSV (``time,agent,lat,lon[,alt]``) as a fixes table."""
-    df = _read_csv(path, text_columns=('agent',))
+    """A GPS CSV (``time,agent,lat,lon[,alt]``; the columns also under the names of
+    :data:`GPS_ALIASES`, said in an :class:`~herd_ros.errors.InputNote`) as a fixes
+    table."""
+    df = _read_csv(path, text_columns=('agent',) + GPS_ALIASES['agent'])
+    renamed = gps_columns(path, df.columns)
+    if renamed:
+        import warnings
+
+        from herd_ros.errors import InputNote
+        df = df.rename(columns=renamed)
+        warnings.warn(InputNote(f'{path}: column{"s" if len(renamed) > 1 else ""} '
+                                + ', '.join(f'{c!r} read as {n!r}' for c, n in renamed.items())),
+                      stacklevel=2)
     missing = [c for c in ('time', 'agent', 'lat', 'lon') if c not in df.columns]
     if missing:
         _fail(path, f'missing column(s) {", ".join(missing)}; a GPS CSV needs the header '
@@ -299,10 +342,11 @@ def sniff_format(path) -> str:
         _fail(path, 'empty file')
     if head.lstrip().startswith('<'):
         return 'gpx'
-    cols = {c.strip().strip('"') for c in head.strip().split(',')}
+    names = [c.strip().strip('"') for c in head.strip().split(',')]
+    cols = set(names)
     if {'location-long', 'location-lat'} <= cols:
         return 'movebank'
-    if {'time', 'agent', 'lat', 'lon'} <= cols:
+    if {'time', 'agent', 'lat', 'lon'} <= cols | set(gps_columns(path, names).values()):
         return 'gps'
     if ',' not in head:
         for sep, name in ((';', 'semicolons'), ('\t', 'tabs'), ('|', 'bars')):
