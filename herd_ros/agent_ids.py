@@ -71,3 +71,12 @@ def ros_agent_ids(ids, where: str) -> list[str]:
             f'ROS names (letters, digits and underscores, starting with a letter): '
             f'{shown}{more}'), stacklevel=2)
     return mapped
+
+
+def ros_agent_id_column(values, where: str):
+    """A column of ids (any sequence; a herd has few ids and many rows) as an object array
+    of :func:`ros_agent_ids`, each distinct id mapped once."""
+    import numpy as np
+    import pandas as pd
+    codes, uniques = pd.factorize(np.asarray(values, dtype=object), use_na_sentinel=False)
+    return np.array(ros_agent_ids(uniques, where), dtype=object)[codes]

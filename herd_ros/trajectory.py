@@ -122,9 +122,8 @@ def read_trajectory_csv(path, *, uniform_tolerance: float = 1e-3,
     if df['agent'].isna().any():
         k = int(np.argmax(df['agent'].isna().to_numpy()))
         _fail(path, f'line {k + 2}: empty agent id')
-    from herd_ros.agent_ids import ros_agent_ids
-    codes, uniques = pd.factorize(df['agent'])
-    df['agent'] = np.array(ros_agent_ids(uniques, str(path)), dtype=object)[codes]
+    from herd_ros.agent_ids import ros_agent_id_column
+    df['agent'] = ros_agent_id_column(df['agent'], str(path))
     has_run = 'run' in df.columns
     if has_run:
         df['run'] = df['run'].fillna('')

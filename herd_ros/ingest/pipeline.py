@@ -42,6 +42,7 @@ from herd_ros.ingest import collar_bank
 from herd_ros.ingest.herd_clock import (StateTimeline, TimelineRecorder, resample_timelines,
                                         tick_grid, walk_of)
 from herd_ros.ingest.stamp_guards import MAX_STAMP_AHEAD_S, future_stamps
+from herd_ros.ingest.tracking_score import taken
 from herd_ros.io.gps_files import normalise_fixes, read_fix_file, sniff_format
 from herd_ros.trajectory import HerdTrajectory
 
@@ -712,9 +713,7 @@ def refusal_runs(raw_fixes: dict, timelines: dict, t0: float = 0.0) -> dict:
     out = {}
     for a, (t, _) in raw_fixes.items():
         t = np.asarray(t, dtype=float)
-        states = np.asarray(timelines[a].t, dtype=float) if a in timelines else np.zeros(0)
-        j = np.minimum(np.searchsorted(states, t), max(len(states) - 1, 0))
-        took = (states[j] == t) if len(states) else np.zeros(len(t), bool)
+        took = taken(timelines[a], t) if a in timelines else np.zeros(len(t), bool)
         edges = np.diff(np.r_[0, (~took).astype(np.int8), 0])
         starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
         if not len(starts):

@@ -126,6 +126,16 @@ def next_fix_distances(fixes: pd.DataFrame, track_times, track_positions, agents
         track_times, track_positions[:, i], t), targets)
 
 
+def taken(timeline, stamps) -> np.ndarray:
+    """Which of a collar's fix ``stamps`` its track took: a state of ``timeline`` (one per
+    accepted fix) at the stamp."""
+    states = np.asarray(timeline.t, dtype=float)
+    stamps = np.asarray(stamps, dtype=float)
+    if not len(states):
+        return np.zeros(len(stamps), bool)
+    return states[np.minimum(np.searchsorted(states, stamps), len(states) - 1)] == stamps
+
+
 def collar_track_before(timeline, stamps, eps: float = 1e-6):
     """A collar's causal track just before each stamp: its state after the last accepted
     fix strictly before the stamp, predicted to ``stamp − eps`` with its motion model
@@ -209,9 +219,7 @@ def ingest_tracking_score(raw_fixes: dict, timelines: dict,
         tracks.append(collar_track_before(timelines[a], t[pick]))
         if clock is not None:                     # (stamps, collar column) for below
             files.append((t[pick], np.full(len(pick), column.get(str(a), -1))))
-        states = np.asarray(timelines[a].t, dtype=float)
-        j = np.minimum(np.searchsorted(states, t[pick]), max(len(states) - 1, 0))
-        took.append((states[j] == t[pick]) if len(states) else np.zeros(len(pick), bool))
+        took.append(taken(timelines[a], t[pick]))
     if used:
         z, raw, track = np.concatenate(zs), np.concatenate(raws), np.concatenate(tracks)
         took = np.concatenate(took)

@@ -33,13 +33,15 @@ Errors raise :class:`herd_ros.errors.HerdInputError` naming the file, line and f
 """
 from __future__ import annotations
 
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from herd_ros.errors import HerdInputError
+from herd_ros.agent_ids import ros_agent_id_column
+from herd_ros.errors import HerdInputError, InputNote
 
 FIX_COLUMNS = ('time', 'agent', 'lat', 'lon', 'alt', 'status', 'position_covariance_type',
                'cov_ee', 'cov_en', 'cov_nn')
@@ -201,9 +203,6 @@ def read_gps_csv(path) -> pd.DataFrame:
     df = _read_csv(path, text_columns=('agent',) + GPS_ALIASES['agent'])
     renamed = gps_columns(path, df.columns)
     if renamed:
-        import warnings
-
-        from herd_ros.errors import InputNote
         df = df.rename(columns=renamed)
         warnings.warn(InputNote(f'{path}: column{"s" if len(renamed) > 1 else ""} '
                                 + ', '.join(f'{c!r} read as {n!r}' for c, n in renamed.items())),
@@ -227,11 +226,9 @@ def read_gps_csv(path) -> pd.DataFrame:
 
 
 def _ids(raw: pd.Series, path) -> np.ndarray:
-    """Agent ids, stripped and made ROS name tokens (:func:`~herd_ros.agent_ids
-    .ros_agent_ids`): each distinct id once (a herd has few ids and many rows)."""
-    from herd_ros.agent_ids import ros_agent_ids
-    codes, uniques = pd.factorize(raw, use_na_sentinel=False)
-    return np.array(ros_agent_ids(uniques, str(path)), dtype=object)[codes]
+    """Agent ids, stripped and made ROS name tokens
+    (:func:`~herd_ros.agent_ids.ros_agent_id_column`)."""
+    return ros_agent_id_column(raw, str(path))
 
 
 def _check_ranges(path, out, lat='lat', lon='lon'):

@@ -20,7 +20,6 @@ ids must be valid ROS name tokens because they become parameter and topic names.
 from __future__ import annotations
 
 import os
-import re
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -28,13 +27,13 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from herd_ros.agent_ids import ROS_TOKEN
 from herd_ros.errors import HerdInputError
 from herd_ros.model.herd_model import KIND, AgentLaw, HerdModel
 from herd_ros.model.rbf_field import RbfBasis
 from herd_ros.model.noise_regimes import check_regimes
 from herd_ros.model.velocity_memory import check_memories
 
-ROS_TOKEN = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 AGENT_KEYS = ('damping', 'neighbors', 'theta1', 'theta2', 'rbf_centers_x', 'rbf_centers_y',
               'rbf_sigma', 'field_u', 'field_v', 'noise_cov')
 

@@ -175,10 +175,7 @@ class GpsIngest(Node):
             return np.fromiter((c for k, (c, _) in enumerate(inbox) if k not in skip),
                                np.int64, m), fixes
         collars = np.fromiter((self._frames.get(f, -1) for f in fixes.frame_id), np.int64, m)
-        unknown = np.flatnonzero(collars < 0)
-        if not len(unknown):
-            return collars, fixes
-        for k in unknown:          # a frame that names a collar once made a ROS name
+        for k in np.flatnonzero(collars < 0):   # a frame naming a collar once made a ROS name
             i = frame_collar(self._frames, fixes.frame_id[k])
             if i >= 0:
                 self._frames[fixes.frame_id[k]] = i        # known from now on
