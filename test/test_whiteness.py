@@ -33,3 +33,36 @@ def test_white_noise_inside_band_ar1_outside():
         ar[t] = 0.9 * ar[t - 1] + e[t]
     red = whiteness(ar)
     assert red.inside_90 < 0.5 and red.ljung_box > 100 * white.ljung_box
+
+
+def test_gaps_use_the_pairs_present():
+    """With missing values (NaN) ρ̂_k is the mean lagged product over the pairs present over
+    the mean square of the values present, times (m − k)/m (Parzen 1963), computed here by
+    hand with loops."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=120)
+    x[[0, 7, 8, 9, 50, 119]] = np.nan
+    ok = np.isfinite(x)
+    m = ok.sum()
+    xc = x - x[ok].mean()
+    c0 = np.nansum(xc * xc) / m
+    direct = [1.0]
+    for k in range(1, 6):
+        prods = [xc[t] * xc[t - k] for t in range(k, len(x)) if ok[t] and ok[t - k]]
+        direct.append(np.mean(prods) / c0 * (m - k) / m)
+    np.testing.assert_allclose(autocorrelation(x, 5), direct, atol=1e-12)
+
+
+def test_a_gap_does_not_make_a_series_white():
+    """One missing step used to turn the mean into NaN and every lag into 0: a strongly
+    autocorrelated series reported 100 % inside the band with Q = 0."""
+    rng = np.random.default_rng(4)
+    e = rng.normal(size=(5000, 2))
+    ar = np.zeros_like(e)
+    for t in range(1, len(e)):
+        ar[t] = 0.9 * ar[t - 1] + e[t]
+    ar[1000:1010] = np.nan
+    red = whiteness(ar)
+    assert red.n == 4990
+    assert red.inside_90 < 0.5 and red.ljung_box > 1000 and red.p_value < 1e-6
+    assert np.isnan(whiteness(np.full(10, np.nan)).inside_90)
