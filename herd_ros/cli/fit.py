@@ -45,8 +45,11 @@ def add_arguments(p):
                         'bounded influence), for data with bursts of bad positions')
     p.add_argument('--folds', type=int, default=FOLDS,
                    help='contiguous blocks per run for the cross-validation')
-    p.add_argument('--train-fraction', type=float, default=0.8,
-                   help='first fraction of every run used for fitting; the rest is held out')
+    p.add_argument('--train-fraction', default='auto',
+                   help='first fraction of every run used for fitting, the rest held out; '
+                        'auto = 0.8, or, if an animal would then have no held-out data (its '
+                        'collar ended before the split), the largest fraction at which every '
+                        'animal holds out 20 %% of its own positions')
     p.add_argument('--se', choices=('sandwich', 'ols'), default='sandwich',
                    help='standard errors: cluster-robust sandwich or textbook OLS')
     p.add_argument('--dt', type=float, help='herd clock step (s) for GPS data')
@@ -118,6 +121,10 @@ def _fmt(x, nd=3):
     return 'n/a' if x is None or not np.isfinite(x) else f'{x:.{nd}f}'
 
 
+def _share(x):
+    return 'n/a' if x is None or not np.isfinite(x) else f'{x:.0%}'
+
+
 def _candidates(args):
     """(terms, grids, ridges) to cross-validate from the options (``None`` = all)."""
     terms = None if args.terms == 'auto' else \
@@ -152,7 +159,7 @@ def _memories(args) -> tuple[float, tuple]:
 def run(args) -> int:
     """Run the verb on the parsed ``args``; returns the exit status."""
     from herd_ros.data_sources import load_runs
-    from herd_ros.estimation.herd_fit import split_runs
+    from herd_ros.estimation.herd_fit import choose_train_fraction, split_runs
     from herd_ros.estimation.validation import skill_lines
     from herd_ros.herd_dynamics import FitOptions, HerdDynamics
 
@@ -190,7 +197,10 @@ def run(args) -> int:
     from herd_ros.model.model_file import check_agent_id
     for agent in runs[0].agents:          # the model file needs them: say so before the fit
         check_agent_id(agent)
-    train, test = split_runs(runs, args.train_fraction)
+    fraction, note = choose_train_fraction(runs, args.train_fraction)
+    if note:
+        print(f'note: {note}', flush=True)
+    train, test = split_runs(runs, fraction)
     options = FitOptions(terms=terms, grids=grids, bounds=bounds, ridges=ridges, memory=memory,
                          memories=memories, law=None if args.law == 'auto' else args.law,
                          own_agents=own_agents, field=args.field, noise=args.noise,
@@ -300,11 +310,11 @@ def _print_summary(fit, summary, args):
         s = summary['agents'][a]
         wv, wr = s['whiteness_velocity'], s['whiteness_residual']
         print(f'{a:>12} {s["damping"]:8.4f}±{_fmt(s["damping_se"], 4):<7} '
-              f'{one["model"][a]:8.3f} {one["constant_velocity"][a]:8.3f} '
-              f'{one["stay_put"][a]:8.3f} {one["damping_only"][a]:8.3f} '
-              + (f'{raw[a]:8.3f} ' if raw else '')
-              + f'{wv["inside_90"]:8.0%} {wr["inside_90"]:8.0%} '
-              f'{wv["ljung_box"]:10.1f} {wr["ljung_box"]:10.1f}')
+              f'{_fmt(one["model"][a]):>8} {_fmt(one["constant_velocity"][a]):>8} '
+              f'{_fmt(one["stay_put"][a]):>8} {_fmt(one["damping_only"][a]):>8} '
+              + (f'{_fmt(raw[a]):>8} ' if raw else '')
+              + f'{_share(wv["inside_90"]):>8} {_share(wr["inside_90"]):>8} '
+              f'{_fmt(wv["ljung_box"], 1):>10} {_fmt(wr["ljung_box"], 1):>10}')
     print(f'{"herd":>12} {"":16} {one["model"]["herd"]:8.3f} '
           f'{one["constant_velocity"]["herd"]:8.3f} {one["stay_put"]["herd"]:8.3f} '
           f'{one["damping_only"]["herd"]:8.3f}' + (f' {raw["herd"]:8.3f}' if raw else ''))

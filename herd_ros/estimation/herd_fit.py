@@ -18,6 +18,10 @@ from herd_ros.model.regressors import agent_regression
 from herd_ros.trajectory import HerdTrajectory
 
 DEFAULT_GRID = (8, 8)
+#: the default training fraction of ``herd-ros fit`` (the first 80 % of every run)
+TRAIN_FRACTION = 0.8
+#: the fewest held-out steps of a run, and positions of an agent, that count as held out
+MIN_HELD_OUT = 3
 
 
 @dataclass
@@ -64,16 +68,87 @@ def aligned_positions(run: HerdTrajectory, agents: list[str]) -> np.ndarray:
 
 
 def split_runs(runs: list[HerdTrajectory], train_fraction: float):
-    """Time split: the first ``train_fraction`` of every run trains, the rest is held out."""
+    """Time split: the first ``train_fraction`` of every run trains, the rest is held out
+    (a run whose rest is shorter than :data:`MIN_HELD_OUT` steps holds out nothing)."""
     if not 0 < train_fraction <= 1:
         raise HerdInputError(f'train fraction must be in (0, 1], got {train_fraction}')
     train, test = [], []
     for r in runs:
         k = int(round(train_fraction * r.n_steps))
         train.append(r.slice(0, k))
-        if r.n_steps - k >= 3:
+        if r.n_steps - k >= MIN_HELD_OUT:
             test.append(r.slice(k, r.n_steps))
     return train, test
+
+
+def held_out_positions(runs: list[HerdTrajectory], train_fraction: float) -> np.ndarray:
+    """Per agent (``runs[0]``'s order), how many positions it has in the part
+    :func:`split_runs` holds out at ``train_fraction``."""
+    agents = list(runs[0].agents)
+    count = np.zeros(len(agents), np.int64)
+    for r in runs:
+        k = int(round(train_fraction * r.n_steps))
+        if r.n_steps - k >= MIN_HELD_OUT:
+            count += np.isfinite(aligned_positions(r, agents)[k:]).all(-1).sum(axis=0)
+    return count
+
+
+def fraction_holding_out_each(runs: list[HerdTrajectory],
+                              share: float = 1.0 - TRAIN_FRACTION) -> float | None:
+    """The largest training fraction, in hundredths and at most :data:`TRAIN_FRACTION`, at
+    which every agent holds out at least ``share`` of its own positions (and at least
+    :data:`MIN_HELD_OUT`); None if no fraction does (an agent seen only at the start)."""
+    agents = list(runs[0].agents)
+    total = sum(np.isfinite(aligned_positions(r, agents)).all(-1).sum(axis=0) for r in runs)
+    for hundredths in range(int(round(100 * TRAIN_FRACTION)), 0, -1):
+        f = hundredths / 100.0
+        held = held_out_positions(runs, f)
+        if ((held >= share * total) & (held >= MIN_HELD_OUT)).all():
+            return f
+    return None
+
+
+def choose_train_fraction(runs: list[HerdTrajectory], requested='auto'
+                          ) -> tuple[float, str | None]:
+    """The training fraction of ``herd-ros fit`` and a note for the user (or None).
+
+    ``requested`` ``'auto'``: :data:`TRAIN_FRACTION`, unless an agent would then have no
+    held-out data (fewer than :data:`MIN_HELD_OUT` positions: its collar ended, or stopped,
+    before the split; its one-step skill and its place in the herd's free run could not be
+    measured), then :func:`fraction_holding_out_each`: the split where every agent holds
+    out the default's share of its own positions. A number is used as given; the note then
+    names the agents it leaves without held-out data and the fraction that would not."""
+    agents = list(runs[0].agents)
+    auto = isinstance(requested, str) and requested.strip().lower() == 'auto'
+    if auto:
+        fraction = TRAIN_FRACTION
+    else:
+        try:
+            fraction = float(requested)
+        except (TypeError, ValueError):
+            raise HerdInputError(f'train fraction must be auto or a number in (0, 1], got '
+                                 f'{requested!r}') from None
+        if not 0 < fraction <= 1:
+            raise HerdInputError(f'train fraction must be in (0, 1], got {requested}')
+    if fraction == 1.0:
+        return fraction, None                     # nothing held out, as asked
+    missing = [a for a, c in zip(agents, held_out_positions(runs, fraction))
+               if c < MIN_HELD_OUT]
+    if not missing:
+        return fraction, None
+    better = fraction_holding_out_each(runs)
+    names = ', '.join(missing)
+    share = f'{100 * (1 - TRAIN_FRACTION):.0f} %'
+    if auto and better is not None:
+        return better, (f'train fraction {better:g} instead of {fraction:g}: at {fraction:g} '
+                        f'{names} would have no held-out data (their positions end before '
+                        f'the split); at {better:g} every animal holds out at least {share} '
+                        f'of its own positions')
+    hint = (f'; --train-fraction {better:g} holds out at least {share} of each animal\'s '
+            f'positions' if better is not None else '')
+    return fraction, (f'at train fraction {fraction:g}, {names} have no held-out data: their '
+                      f'one-step skill and their place in the free run are not measured'
+                      f'{hint}')
 
 
 def fit_herd(runs: list[HerdTrajectory], grid: tuple[int, int] = DEFAULT_GRID,

@@ -134,6 +134,12 @@ def format_free_run(result: dict, per_agent: bool = False) -> str:
         cells = []
         for k in STATISTICS:
             r = stats[k]
+            if not np.isfinite(r['data']):
+                # distance and spread need two animals at a step: with one, not measured
+                cells.append(f'{k.replace("_", " ")} not measured (no data: '
+                             + ('fewer than two animals at every step)'
+                                if k in ('distance', 'spread') else 'too few steps)'))
+                continue
             cells.append(f'{k.replace("_", " ")} {r["median"]:.3g} [{r["min"]:.3g}, '
                          f'{r["max"]:.3g}] vs {r["data"]:.3g} ({100 * r["relative"]:+.0f} %)')
         lines.append(f'  {name:<{width}}  ' + '; '.join(cells))
