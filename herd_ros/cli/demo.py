@@ -44,7 +44,7 @@ def shipped_bag(name: str = BAG_NAME) -> Path:
 
 def add_arguments(p):
     """The verb's options (``herd-ros VERB --help``)."""
-    p.add_argument('--out', default='demo_out', help='report directory')
+    p.add_argument('-o', '--out', default='demo_out', help='report directory')
     p.add_argument('--bag', help=f'bag to use (default: the herd file\'s bag, else the shipped '
                                  f'bags/{BAG_NAME}, 19 wild baboons)')
     p.add_argument('--herd', metavar='HERD_YAML',

@@ -52,7 +52,7 @@ def add_arguments(parser):
     parser.add_argument('--record-every', type=float, default=0.1,
                         help='seconds between rows of trajectories.csv / frames of the GIF')
     parser.add_argument('--gif', action='store_true', help='also write animation.gif')
-    parser.add_argument('--out', type=Path, required=True, help='output directory')
+    parser.add_argument('-o', '--out', type=Path, required=True, help='output directory')
 
 
 def load_flocking_params(path: Path | None):

@@ -32,7 +32,7 @@ def _values(text: str, option: str, kind=int) -> list:
 
 def add_arguments(p):
     """The verb's options (``herd-ros VERB --help``)."""
-    p.add_argument('--out', type=Path, required=True, help='output directory')
+    p.add_argument('-o', '--out', type=Path, required=True, help='output directory')
     p.add_argument('--animals', default='14', help='herd sizes N, comma-separated')
     p.add_argument('--herders', default='1', help='numbers of herders, comma-separated')
     p.add_argument('--noise', default='0.3', help='animal noise e, comma-separated')

@@ -12,7 +12,7 @@ def add_arguments(p):
     """The verb's options (``herd-ros VERB --help``)."""
     p.add_argument('model', help='model file')
     p.add_argument('data', help='trajectory CSV, GPS CSV or bag to evaluate on')
-    p.add_argument('--out', required=True, help='report directory')
+    p.add_argument('-o', '--out', required=True, help='report directory')
     p.add_argument('--dt', type=float, help='herd clock step (s) for GPS data')
     p.add_argument('--seed', type=int, default=0, help='seed of the simulation')
 
