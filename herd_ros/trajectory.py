@@ -137,7 +137,10 @@ def read_trajectory_csv(path, *, uniform_tolerance: float = 1e-3,
 
 def _build_run(path, run_label, rdf, tol, require_uniform) -> HerdTrajectory:
     where = f' (run {run_label})' if run_label is not None else ''
-    agents = list(dict.fromkeys(rdf['agent'].tolist()))
+    # sorted, as the fix readers give them: the same herd in another row order (a track
+    # written by `herd-ros ingest` starts with the agents that have a pose at the first
+    # tick) is the same herd, down to which noise stream a simulation gives each agent
+    agents = sorted(set(rdf['agent'].tolist()))
     per_agent = {}
     for agent, adf in rdf.groupby('agent', sort=False):
         t = adf['time'].to_numpy()
