@@ -251,6 +251,14 @@ def test_predict_writes_hand_computed_positions_and_covariances(tmp_path, capsys
         var = 4.0 * q * (1.0 if k == 1 else (1 + a) ** 2 + 1)
         assert first.cov_xx == pytest.approx(var, rel=1e-5) and first.cov_xy == 0.0
     assert 'inside the 90 % prediction ellipse' in out
+    # beside the naive predictors on the same positions: stay-put p^{t−k}, constant velocity
+    # p^{t−k} + k (p^{t−k} − p^{t−k−1}), by hand
+    t = np.arange(k + 1, T)
+    stay = np.sqrt(np.mean(((pos[t - k] - pos[t]) ** 2).sum(-1)))
+    cv = np.sqrt(np.mean(((pos[t - k] + k * (pos[t - k] - pos[t - k - 1]) - pos[t]) ** 2)
+                         .sum(-1)))
+    assert (f'on the {2 * len(t)} positions every predictor reaches: model ' in out
+            and f'stay-put {stay:.3f}, constant velocity {cv:.3f}' in out), out
 
 
 def test_predict_refuses_data_without_the_models_agents(tmp_path, capsys):

@@ -66,8 +66,10 @@ def run(args) -> int:
     frames = []
     hits = total = 0
     sq = 0.0
+    naive = {}               # method: [squared error, count] on the samples every one has
     for r, p in runs:
         pred, cov = dyn.predict(p, args.steps, return_cov=True)     # (T, N, 2), (T, N, 2, 2)
+        _add_naive(naive, r, p, pred, model.agents, args.steps)
         ok = np.isfinite(pred).all(-1)                               # (T, N)
         tt, ii = np.nonzero(ok)
         c = cov[tt, ii]
@@ -98,4 +100,39 @@ def run(args) -> int:
     if total:
         print(f'observed positions: RMS error {np.sqrt(sq / total):.3f} m, inside the 90 % '
               f'prediction ellipse {hits / total:.1%} (of {total})')
+    line = naive_line(naive, args.steps)
+    if line:
+        print(line)
     return 0
+
+
+def _add_naive(acc: dict, run, p, pred, agents, k: int) -> None:
+    """Add the squared errors of the model and the naive predictors (stay-put, constant
+    velocity and, for GPS input, the last raw fix) over the positions where all of them
+    predict and the position is observed to ``acc`` ({method: [sum, count]})."""
+    from herd_ros.simulation.prediction import last_raw_fix_ahead, naive_ahead
+    preds = {'model': pred, **naive_ahead(p, k)}
+    raw = last_raw_fix_ahead(run, agents, k)
+    if raw is not None:
+        preds['last_raw_fix'] = raw
+    sq = {m: ((x - p) ** 2).sum(-1) for m, x in preds.items()}
+    ok = np.logical_and.reduce([np.isfinite(v) for v in sq.values()])
+    for m, v in sq.items():
+        total = acc.setdefault(m, [0.0, 0])
+        total[0] += float(v[ok].sum())
+        total[1] += int(ok.sum())
+
+
+NAIVE_NAMES = {'model': 'model', 'stay_put': 'stay-put', 'constant_velocity':
+               'constant velocity', 'last_raw_fix': 'last raw fix (GPS input: the fix '
+               'before the origin tick, no filter)'}
+
+
+def naive_line(acc: dict, k: int) -> str | None:
+    """The model's RMS beside the naive predictors', on the same positions."""
+    n = acc.get('model', [0.0, 0])[1]
+    if not n:
+        return None
+    cells = ', '.join(f'{NAIVE_NAMES[m]} {np.sqrt(s / c):.3f}' for m, (s, c) in acc.items())
+    return (f'{k} step{"s" if k > 1 else ""} ahead, RMS (m) on the {n} positions every '
+            f'predictor reaches: {cells}')

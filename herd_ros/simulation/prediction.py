@@ -115,6 +115,41 @@ def k_step_rms(model: HerdModel, runs: list[HerdTrajectory], ks=(1, 5, 10, 30),
                 for k in ks} for m in methods}
 
 
+def naive_ahead(positions: np.ndarray, k: int = 1) -> dict[str, np.ndarray]:
+    """The naive k-step predictions aligned as :func:`predict_ahead`'s (p̂[t] from p[t−k]
+    and p[t−k−1]; NaN for t < k + 1 or where an agent is missing): stay-put p[t−k] and
+    constant velocity p[t−k] + k (p[t−k] − p[t−k−1]). {name: (T, N, 2)}."""
+    p = np.asarray(positions, dtype=float)
+    T = p.shape[0]
+    stay, cv = np.full(p.shape, np.nan), np.full(p.shape, np.nan)
+    if T >= k + 2:
+        origin, before = p[1:T - k], p[:T - k - 1]
+        stay[k + 1:] = origin
+        cv[k + 1:] = origin + k * (origin - before)
+    return {'stay_put': stay, 'constant_velocity': cv}
+
+
+def last_raw_fix_ahead(run: HerdTrajectory, agents, k: int = 1) -> np.ndarray | None:
+    """For GPS input (``run.meta['raw_fixes']``: per agent its fixes' times and ENU
+    positions), p̂[t] = the agent's last raw fix at or before the origin tick t − k: what a
+    user has with no filter, aligned as :func:`predict_ahead`'s (NaN before the agent's
+    first fix). None for a run with no raw fixes (a trajectory file)."""
+    raw = run.meta.get('raw_fixes')
+    if raw is None:
+        return None
+    T = run.n_steps
+    out = np.full((T, len(agents), 2), np.nan)
+    if T < k + 2:
+        return out
+    origins = np.asarray(run.times, dtype=float)[1:T - k]
+    for i, a in enumerate(agents):
+        t, xy = raw.get(a, (np.zeros(0), np.zeros((0, 2))))
+        j = np.searchsorted(np.asarray(t, dtype=float), origins, side='right') - 1
+        have = j >= 0
+        out[k + 1:][have, i] = np.asarray(xy, dtype=float)[j[have]]
+    return out
+
+
 def damping_only_fit(positions: np.ndarray) -> np.ndarray:
     """Per-agent damping a of p̂^{τ+2} = p^{τ+1} + a (p^{τ+1} − p^τ), least squares over the
     finite triples of ``positions`` (T, N, 2): a_i = Σ u^τ·u^{τ+1} / Σ |u^τ|² (NaN skipped).
