@@ -85,19 +85,15 @@ def last_raw_fix_rms(runs, agents) -> dict | None:
     agent's last raw fix at or before tick k (what a user has with no filter), on the
     samples the other baselines use (p^{k−1}, p^k, p^{k+1} present); None when the runs
     carry no raw fixes (a trajectory file). {agent: RMS, 'herd': RMS}."""
+    from herd_ros.simulation.prediction import last_raw_fix_ahead
     errs = []
     for r in runs:
-        raw = r.meta.get('raw_fixes')
-        if raw is None or r.n_steps < 3:
+        if r.meta.get('raw_fixes') is None or r.n_steps < 3:
             continue
         p = aligned_positions(r, agents)
-        e = np.full(p[2:].shape, np.nan)
-        for i, a in enumerate(agents):
-            t, xy = raw.get(a, (np.zeros(0), np.zeros((0, 2))))
-            k = np.searchsorted(t, r.times[1:-1], side='right') - 1
-            have = (k >= 0) & np.isfinite(p[:-2, i, 0]) & np.isfinite(p[1:-1, i, 0])
-            e[have, i] = xy[k[have]] - p[2:][have, i]
-        errs.append(e)
+        have = np.isfinite(p[:-2, :, 0]) & np.isfinite(p[1:-1, :, 0])
+        e = last_raw_fix_ahead(r, agents, 1)[2:] - p[2:]
+        errs.append(np.where(have[..., None], e, np.nan))
     if not errs:
         return None
     sq = (np.concatenate(errs) ** 2).sum(-1)
