@@ -66,3 +66,20 @@ def test_a_gap_does_not_make_a_series_white():
     assert red.n == 4990
     assert red.inside_90 < 0.5 and red.ljung_box > 1000 and red.p_value < 1e-6
     assert np.isnan(whiteness(np.full(10, np.nan)).inside_90)
+
+
+def test_the_report_figure_takes_series_with_gaps_of_their_own(tmp_path):
+    """Over gaps the velocity and the residual have different counts present, so their
+    maximum lags differ (here 44 and 43): Fig. 4 draws each against its own lags."""
+    from herd_ros.report.fit_figures import whiteness_figure
+    rng = np.random.default_rng(5)
+    vel, res = rng.normal(size=(200, 2)), rng.normal(size=(200, 2))
+    vel[:23] = np.nan
+    res[:26] = np.nan
+    wv, wr = whiteness(vel), whiteness(res)
+    assert (len(wv.acf), len(wr.acf)) == (45, 44)
+    summary = {'agents': {'a': {'acf_velocity': wv.acf.tolist(), 'acf_residual': wr.acf.tolist(),
+                                'whiteness_velocity': wv.as_dict(),
+                                'whiteness_residual': wr.as_dict()}}}
+    whiteness_figure(summary, tmp_path / 'fig4.png')
+    assert (tmp_path / 'fig4.png').stat().st_size > 5_000

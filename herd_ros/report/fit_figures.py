@@ -135,15 +135,20 @@ def whiteness_figure(summary: dict, path: Path):
         s = summary['agents'][a]
         av, ar = np.asarray(s['acf_velocity']), np.asarray(s['acf_residual'])
         n = s['whiteness_residual']['n']
-        lags = np.arange(len(av))
-        ax.plot(lags[1:], av[1:, 0], 'C0.-', ms=3, label='velocity')
-        ax.plot(lags[1:], ar[1:, 0], 'C3.-', ms=3, label='residual')
-        for z, ls in ((1.645, ':'), (1.96, '--')):
-            ax.axhline(z / np.sqrt(n), color='k', ls=ls, lw=0.7)
-            ax.axhline(-z / np.sqrt(n), color='k', ls=ls, lw=0.7)
+        # each series its own lags: over gaps the two have different counts present
+        # (estimation/whiteness.py), so their maximum lags may differ
+        ax.plot(np.arange(1, len(av)), av[1:, 0], 'C0.-', ms=3, label='velocity')
+        ax.plot(np.arange(1, len(ar)), ar[1:, 0], 'C3.-', ms=3, label='residual')
+        if n > 0:
+            for z, ls in ((1.645, ':'), (1.96, '--')):
+                ax.axhline(z / np.sqrt(n), color='k', ls=ls, lw=0.7)
+                ax.axhline(-z / np.sqrt(n), color='k', ls=ls, lw=0.7)
         wr, wv = s['whiteness_residual'], s['whiteness_velocity']
-        ax.set_title(f'{a}: inside 90 % band: residual {wr["inside_90"]:.0%}, '
-                     f'velocity {wv["inside_90"]:.0%}', fontsize=8)
+
+        def share(x):
+            return 'n/a' if not np.isfinite(x) else f'{x:.0%}'
+        ax.set_title(f'{a}: inside 90 % band: residual {share(wr["inside_90"])}, '
+                     f'velocity {share(wv["inside_90"])}', fontsize=8)
         ax.set_xlabel('lag (steps)', fontsize=8)
         ax.legend(fontsize=7)
         ax.tick_params(labelsize=7)
